@@ -1,0 +1,57 @@
+"""ament_python package lip_ros (colcon build on a ROS 2 Jazzy install, or pip)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "lip_ros"
+
+# Installed by pip from PyPI (`pip install -e ".[pypi]"`); on a full ROS 2 install
+# rclpy and the message packages come from the distribution (package.xml) instead.
+PYPI = [
+    "ros-jazzy-rclpy==7.1.6",
+    "ros-jazzy-common-interfaces==5.3.6",
+    "ros-jazzy-rmw-fastrtps-cpp==8.4.3",
+    "ros-jazzy-ament-index-python==1.8.1",
+    "torch==2.13.0",
+]
+CORE = [
+    "numpy>=1.26,<3",
+    "scipy>=1.11,<2",
+    "PyYAML>=6,<7",
+    "rosbags>=0.11.9,<0.12",
+    "mcap>=1.2,<2",
+    "fpsample>=1.0,<2",
+    "matplotlib>=3.8,<4",
+]
+TEST = [
+    "pytest>=8,<10",
+    "colcon-core==0.21.3",
+    "colcon-ros==0.5.0",
+    "ros-jazzy-ament-package==0.16.4",
+]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/params", sorted(glob("params/*.yaml") + glob("params/*.urdf") + glob("params/*.xml"))),
+    ],
+    install_requires=["setuptools"],
+    extras_require={"core": CORE, "pypi": CORE + PYPI, "test": TEST},
+    zip_safe=True,
+    maintainer="lip_ros developers",
+    maintainer_email="lip_ros@example.com",
+    description="Human motion capture in large spaces from LiDAR and body-worn IMUs (LIP, HSC4D) for ROS 2 Jazzy",
+    license="Apache-2.0",
+    python_requires=">=3.10",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "lip_rig = lip_ros.rig.cli:main",
+        ],
+    },
+)
