@@ -1,0 +1,40 @@
+# lip_ros: set-up, demo and tests on a Debian machine with Python 3.11.
+#   make demo   create/reuse .venv, install, run the main job on the bundled demo bag
+#   make test   create/reuse .venv, install, run the whole test suite
+
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+INSTALLED := $(VENV)/.installed
+OUT ?= out
+
+# Keep DDS on this machine's loopback, in a domain of its own per run.
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+ROS_DOMAIN_ID ?= $(shell $(PYTHON) -c 'import random; print(random.randint(1, 100))')
+export ROS_DOMAIN_ID
+
+.PHONY: venv demo test bench urdf clean
+
+venv: $(INSTALLED)
+
+$(INSTALLED): setup.py setup.cfg package.xml
+	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), "Python >= 3.10 needed"'
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV) || { echo "python venv failed: apt-get install python3-venv"; exit 1; }
+	$(PY) -m pip install --quiet -e ".[pypi,test]"
+	@touch $@
+
+demo: $(INSTALLED)
+	$(VENV)/bin/lip_rig inspect bags/demo_walk --plot $(OUT)/demo_walk.png
+
+test: $(INSTALLED)
+	$(PY) -m pytest test -q -p no:cacheprovider
+
+bench: $(INSTALLED)
+	$(PY) benchmarks/bench_msgs.py
+	$(PY) benchmarks/bench_rig_lidar.py
+
+urdf: $(INSTALLED)
+	$(PY) -m lip_ros.tools.make_urdf
+
+clean:
+	rm -rf $(VENV) $(OUT) build install log .pytest_cache

@@ -1,0 +1,1 @@
+"""Command-line tools of lip_ros (bag generation helpers, URDF generation, ...)."""
