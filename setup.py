@@ -51,6 +51,7 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
+            "fusion_node = lip_ros.nodes.fusion_node:main",
             "lip_rig = lip_ros.rig.cli:main",
         ],
     },

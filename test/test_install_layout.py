@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-EXECUTABLES = ["lip_rig"]
+EXECUTABLES = ["fusion_node"]
 
 
 def _ros2_run_path(prefix_path: str, package: str, executable: str) -> Path:

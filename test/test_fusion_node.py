@@ -1,0 +1,88 @@
+"""fusion_node over real DDS: a separate process, fed by publishers in this one, reports on /diagnostics."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Imu, PointCloud2
+
+from lip_msgs_py import OUSTER_ORIGINAL_DTYPE, RclpyBackend, array_to_cloud, msg_to_diagnostics
+
+IMUS = ("left_wrist", "right_wrist", "left_ankle", "right_ankle")
+
+
+def _executable() -> str:
+    exe = shutil.which("fusion_node", path=str(Path(sys.executable).parent))
+    assert exe, "fusion_node console script not installed in this environment"
+    return exe
+
+
+@pytest.fixture()
+def ros_node():
+    rclpy.init()
+    node = rclpy.create_node("fusion_node_test_driver")
+    yield node
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def _imu(stamp_ns: int, quat: tuple[float, float, float, float]) -> Imu:
+    msg = Imu()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    msg.header.frame_id = "dot"
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = quat
+    msg.linear_acceleration.z = 9.81
+    return msg
+
+
+def test_fusion_node_accounts_for_every_input(ros_node) -> None:
+    proc = subprocess.Popen([_executable(), "--ros-args", "-p", "diagnostics_period_s:=0.5"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        backend = RclpyBackend()
+        imu_pubs = {n: ros_node.create_publisher(Imu, f"/dot/{n}/imu", qos_profile_sensor_data) for n in IMUS}
+        cloud_pub = ros_node.create_publisher(PointCloud2, "/ouster/points", qos_profile_sensor_data)
+        latest: list[DiagnosticArray] = []
+        ros_node.create_subscription(DiagnosticArray, "/diagnostics", latest.append, 10)
+
+        points = np.zeros((128, 256), dtype=OUSTER_ORIGINAL_DTYPE)
+        points["x"][:, ::2] = np.nan
+        bad_cloud = array_to_cloud(backend, points, 0, "os_lidar")
+        bad_cloud.row_step -= 48  # data length no longer matches row_step * height
+        t_end = time.monotonic() + 4.0
+        k = 0
+        while time.monotonic() < t_end:
+            stamp = time.time_ns()
+            for n, pub in imu_pubs.items():
+                quat = (0.0, 0.0, 0.0, 0.0) if n == "right_ankle" and k % 2 else (0.0, 0.0, 0.0, 1.0)
+                pub.publish(_imu(stamp, quat))
+            if k % 6 == 0:
+                cloud_pub.publish(bad_cloud if k % 60 == 30 else array_to_cloud(backend, points, stamp, "os_lidar"))
+            rclpy.spin_once(ros_node, timeout_sec=1 / 60)
+            k += 1
+        assert latest, "no /diagnostics from fusion_node: " + (proc.poll() is not None and proc.stdout.read() or "")
+        report = {s.name.split(": ")[-1]: s for s in msg_to_diagnostics(latest[-1]).statuses}
+    finally:
+        proc.terminate()
+        out = proc.communicate(timeout=10)[0]
+
+    assert set(report) == {"ouster", *IMUS}
+    for name in ("left_wrist", "right_wrist", "left_ankle"):
+        assert report[name].level == 0, report[name]
+        assert 40 < float(report[name].values["rate_hz"]) < 75
+    ankle = report["right_ankle"]
+    assert ankle.level == 1 and "rejected" in ankle.message
+    rejected = int(next(v for k, v in ankle.values.items() if k.startswith("rejected")))
+    assert rejected > 50 and int(ankle.values["accepted"]) > 50
+    assert report["ouster"].hardware_id == "/ouster/points"
+    assert int(next(v for k, v in report["ouster"].values.items() if k.startswith("rejected"))) >= 1
+    assert "message skipped" in out  # the log says why
