@@ -1,0 +1,253 @@
+"""A performer's body surface: capsules around the bones of the contract skeleton.
+
+Every body part is a capsule (a segment swept by a sphere): horizontal capsules
+stacked up the torso give it its width and shallow depth, one capsule per limb
+bone, a short vertical capsule for the head. An endpoint of a capsule is a
+joint position plus an offset in that joint's bone frame (equal to the model
+frame M at rest: x left, y up, z forward), so the surface follows any pose of
+forward kinematics. Offsets and radii are given for the reference skeleton
+(pelvis 0.95 m above the soles, a body about 1.73 m tall); a scaled skeleton
+scales them all, the per-performer ``girth`` scales the radii only.
+
+All functions take one pose, ``glob_rot`` (24, 3, 3) global joint rotations and
+``joint_pos`` (24, 3) joint positions, both in the world frame, as returned by
+``lip_ros.core.skeleton.forward_kinematics``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lip_ros.core.skeleton import Skeleton
+
+__all__ = ["BodyModel", "REFERENCE_PELVIS_HEIGHT"]
+
+#: Pelvis height of the skeleton the capsule table below is drawn for (metres).
+REFERENCE_PELVIS_HEIGHT = 0.95
+
+_SKIN, _CLOTH = 0, 1
+
+# name, (joint, offset), (joint, offset), radius, material. Offsets are in the
+# joint's bone frame. Parts named "left_*" are mirrored (x -> -x) to the right.
+_End = tuple[str, tuple[float, float, float]]
+_PARTS: tuple[tuple[str, _End, _End, float, int], ...] = (
+    ("pelvis", ("pelvis", (0.075, -0.065, -0.01)), ("pelvis", (-0.075, -0.065, -0.01)), 0.105, _CLOTH),
+    ("abdomen", ("spine1", (0.07, 0.0, 0.01)), ("spine1", (-0.07, 0.0, 0.01)), 0.105, _CLOTH),
+    ("lower_chest", ("spine2", (0.075, 0.0, 0.0)), ("spine2", (-0.075, 0.0, 0.0)), 0.11, _CLOTH),
+    ("chest", ("spine3", (0.08, 0.06, -0.01)), ("spine3", (-0.08, 0.06, -0.01)), 0.115, _CLOTH),
+    ("neck", ("neck", (0.0, 0.0, 0.0)), ("head", (0.0, 0.0, 0.0)), 0.055, _SKIN),
+    ("head", ("head", (0.0, 0.03, 0.015)), ("head", (0.0, 0.11, 0.015)), 0.09, _SKIN),
+    ("left_shoulder", ("left_collar", (0.0, 0.0, 0.0)), ("left_shoulder", (0.0, 0.0, 0.0)), 0.06, _CLOTH),
+    ("left_upper_arm", ("left_shoulder", (0.0, 0.0, 0.0)), ("left_elbow", (0.0, 0.0, 0.0)), 0.05, _CLOTH),
+    ("left_forearm", ("left_elbow", (0.0, 0.0, 0.0)), ("left_wrist", (0.0, 0.0, 0.0)), 0.04, _CLOTH),
+    ("left_hand", ("left_wrist", (0.0, 0.0, 0.0)), ("left_hand", (0.05, 0.0, 0.0)), 0.035, _SKIN),
+    ("left_thigh", ("left_hip", (0.0, 0.0, 0.0)), ("left_knee", (0.0, 0.0, 0.0)), 0.075, _CLOTH),
+    ("left_shank", ("left_knee", (0.0, 0.0, 0.0)), ("left_ankle", (0.0, 0.0, 0.0)), 0.05, _CLOTH),
+    ("left_foot", ("left_ankle", (0.0, -0.05, -0.045)), ("left_foot", (0.0, 0.005, 0.05)), 0.035, _CLOTH),
+)
+
+
+def _mirror(name: str) -> str:
+    return "right_" + name[len("left_") :]
+
+
+def _part_table() -> list[tuple[str, str, np.ndarray, str, np.ndarray, float, int]]:
+    """The capsule table with the right side mirrored from the left."""
+    rows = []
+    flip = np.array([-1.0, 1.0, 1.0])
+    for name, (ja, oa), (jb, ob), radius, material in _PARTS:
+        rows.append((name, ja, np.array(oa), jb, np.array(ob), radius, material))
+        if name.startswith("left_"):
+            rows.append((_mirror(name), _mirror(ja), flip * oa, _mirror(jb), flip * ob, radius, material))
+    return rows
+
+
+def _closest_on_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Closest points to ``p`` on the segments ``a``-``b`` (all broadcast over leading axes, last axis 3)."""
+    ab = b - a
+    denom = np.maximum(np.sum(ab * ab, axis=-1), 1e-18)
+    s = np.clip(np.sum((p - a) * ab, axis=-1) / denom, 0.0, 1.0)
+    return a + s[..., None] * ab
+
+
+def _sphere_hit(origin: np.ndarray, dirs: np.ndarray, centre: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Entry distance of unit rays into spheres (rowwise), inf if missed or behind."""
+    oc = origin - centre
+    b = np.sum(dirs * oc, axis=-1)
+    h = b * b - (np.sum(oc * oc, axis=-1) - radius * radius)
+    with np.errstate(invalid="ignore"):
+        t = -b - np.sqrt(h)
+    return np.where((h >= 0.0) & (t > 0.0), t, np.inf)
+
+
+def _capsule_hit(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Entry distance of unit rays (origin (3,), dirs (M, 3)) into capsules (rowwise (M, 3), (M,)), inf if none.
+
+    The first hit of a capsule is the nearest of its open cylinder and its two end spheres.
+    """
+    ba = b - a
+    oa = origin - a
+    baba = np.sum(ba * ba, axis=-1)
+    bard = np.sum(ba * dirs, axis=-1)
+    baoa = np.sum(ba * oa, axis=-1)
+    qa = baba - bard * bard
+    qb = baba * np.sum(dirs * oa, axis=-1) - baoa * bard
+    qc = baba * np.sum(oa * oa, axis=-1) - baoa * baoa - r * r * baba
+    h = qb * qb - qa * qc
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (-qb - np.sqrt(h)) / qa
+        y = baoa + t * bard
+        side = (h >= 0.0) & (qa > 1e-12 * baba) & (t > 0.0) & (y > 0.0) & (y < baba)
+    t_side = np.where(side, t, np.inf)
+    return np.minimum(t_side, np.minimum(_sphere_hit(origin, dirs, a, r), _sphere_hit(origin, dirs, b, r)))
+
+
+@dataclass(frozen=True)
+class _Capsules:
+    """Capsules of one pose: endpoints (K, 3), radii (K,)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    r: np.ndarray
+
+
+class BodyModel:
+    """Capsule body of one performer around ``skeleton``, thickened by ``girth``.
+
+    ``reflectivity`` of each capsule (NIR, 0..1) is ``skin_reflectivity`` for
+    head, neck and hands and ``clothing_reflectivity`` elsewhere.
+    """
+
+    def __init__(
+        self,
+        skeleton: Skeleton,
+        girth: float = 1.0,
+        clothing_reflectivity: float = 0.4,
+        skin_reflectivity: float = 0.55,
+    ) -> None:
+        if girth <= 0.0:
+            raise ValueError("girth must be positive")
+        self.skeleton = skeleton
+        self.girth = float(girth)
+        size = skeleton.pelvis_height / REFERENCE_PELVIS_HEIGHT
+        table = _part_table()
+        self.names: tuple[str, ...] = tuple(row[0] for row in table)
+        self._ja = np.array([skeleton.index(row[1]) for row in table])
+        self._oa = size * np.stack([row[2] for row in table])
+        self._jb = np.array([skeleton.index(row[3]) for row in table])
+        self._ob = size * np.stack([row[4] for row in table])
+        self.radius: np.ndarray = size * self.girth * np.array([row[5] for row in table])
+        materials = np.array([row[6] for row in table])
+        self.reflectivity: np.ndarray = np.where(materials == _SKIN, skin_reflectivity, clothing_reflectivity)
+
+    @property
+    def num_capsules(self) -> int:
+        """Number of capsules K."""
+        return len(self.names)
+
+    def capsules(self, glob_rot: np.ndarray, joint_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Capsule endpoints a (..., K, 3), b (..., K, 3) and radii (K,) of a pose (batched over leading axes)."""
+        glob_rot = np.asarray(glob_rot, dtype=np.float64)
+        joint_pos = np.asarray(joint_pos, dtype=np.float64)
+        a = joint_pos[..., self._ja, :] + np.einsum("...kij,kj->...ki", glob_rot[..., self._ja, :, :], self._oa)
+        b = joint_pos[..., self._jb, :] + np.einsum("...kij,kj->...ki", glob_rot[..., self._jb, :, :], self._ob)
+        return a, b, self.radius
+
+    def _pose(self, glob_rot: np.ndarray, joint_pos: np.ndarray) -> _Capsules:
+        a, b, r = self.capsules(glob_rot, joint_pos)
+        if a.ndim != 2:
+            raise ValueError("expected one pose: glob_rot (24, 3, 3), joint_pos (24, 3)")
+        return _Capsules(a, b, r)
+
+    @staticmethod
+    def _capsule_distance(points: np.ndarray, caps: _Capsules) -> np.ndarray:
+        """(N, K) signed distance of each point to each capsule."""
+        p = points[:, None, :]
+        q = _closest_on_segment(p, caps.a[None], caps.b[None])
+        return np.linalg.norm(p - q, axis=-1) - caps.r
+
+    def surface_distance(self, points: np.ndarray, glob_rot: np.ndarray, joint_pos: np.ndarray) -> np.ndarray:
+        """(N,) signed distance of points (N, 3) to the body surface, negative inside."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return self._capsule_distance(points, self._pose(glob_rot, joint_pos)).min(axis=1)
+
+    def bounding_sphere(self, glob_rot: np.ndarray, joint_pos: np.ndarray) -> tuple[np.ndarray, float]:
+        """Centre (3,) and radius of a sphere enclosing the whole body."""
+        caps = self._pose(glob_rot, joint_pos)
+        ends = np.concatenate([caps.a, caps.b])
+        rr = np.concatenate([caps.r, caps.r])
+        centre = 0.5 * ((ends - rr[:, None]).min(axis=0) + (ends + rr[:, None]).max(axis=0))
+        return centre, float(np.max(np.linalg.norm(ends - centre, axis=1) + rr))
+
+    def raycast(
+        self, origin: np.ndarray, dirs: np.ndarray, glob_rot: np.ndarray, joint_pos: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First hits of unit rays from ``origin`` (3,) along ``dirs`` (N, 3) with the body.
+
+        Returns range (N,) (inf where missed), cosine of the incidence angle (N,)
+        and the reflectivity of the surface hit (N,) (both 0 where missed). Only
+        (ray, capsule) pairs whose capsule's bounding sphere the ray passes are tested.
+        """
+        caps = self._pose(glob_rot, joint_pos)
+        origin = np.asarray(origin, dtype=np.float64)
+        dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+        n = len(dirs)
+        centre = 0.5 * (caps.a + caps.b) - origin
+        reach = 0.5 * np.linalg.norm(caps.b - caps.a, axis=1) + caps.r
+        along = dirs @ centre.T  # (N, K)
+        near = (np.sum(centre * centre, axis=1) - along * along <= reach * reach) & (along > -reach)
+        ray, cap = np.nonzero(near)
+        t = _capsule_hit(origin, dirs[ray], caps.a[cap], caps.b[cap], caps.r[cap])
+        best = np.full(n, np.inf)
+        np.minimum.at(best, ray, t)
+        win = np.isfinite(t) & (t == best[ray])
+        ray, cap, t = ray[win], cap[win], t[win]
+        hit = origin + t[:, None] * dirs[ray]
+        normal = hit - _closest_on_segment(hit, caps.a[cap], caps.b[cap])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+        cos_inc = np.zeros(n)
+        refl = np.zeros(n)
+        cos_inc[ray] = np.clip(-np.sum(normal * dirs[ray], axis=1), 0.0, 1.0)
+        refl[ray] = self.reflectivity[cap]
+        return best, cos_inc, refl
+
+    def sample_surface(
+        self, glob_rot: np.ndarray, joint_pos: np.ndarray, n: int, rng: np.random.Generator
+    ) -> np.ndarray:
+        """(n, 3) points uniformly distributed on the outer surface of the body.
+
+        Points are drawn on every capsule in proportion to its area and kept only
+        where no other capsule covers them (rejection), so overlaps are not
+        oversampled.
+        """
+        caps = self._pose(glob_rot, joint_pos)
+        axis = caps.b - caps.a
+        length = np.linalg.norm(axis, axis=1)
+        u = axis / np.maximum(length, 1e-12)[:, None]
+        helper = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        e1 = np.cross(u, helper)
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(u, e1)
+        side_area = 2.0 * np.pi * caps.r * length
+        area = side_area + 4.0 * np.pi * caps.r**2
+        kept: list[np.ndarray] = []
+        remaining = n
+        while remaining > 0:
+            m = max(2 * remaining, 256)
+            k = rng.choice(len(area), size=m, p=area / area.sum())
+            on_side = rng.random(m) * area[k] < side_area[k]
+            phi = rng.uniform(0.0, 2.0 * np.pi, m)
+            ring = np.cos(phi)[:, None] * e1[k] + np.sin(phi)[:, None] * e2[k]
+            side = caps.a[k] + rng.random(m)[:, None] * axis[k] + caps.r[k, None] * ring
+            v = rng.standard_normal((m, 3))
+            v /= np.linalg.norm(v, axis=1, keepdims=True)
+            end = np.where((np.sum(v * u[k], axis=1) < 0.0)[:, None], caps.a[k], caps.b[k])
+            p = np.where(on_side[:, None], side, end + caps.r[k, None] * v)
+            dist = self._capsule_distance(p, caps)
+            dist[np.arange(m), k] = np.inf
+            p = p[dist.min(axis=1) >= -1e-9][:remaining]
+            kept.append(p)
+            remaining -= len(p)
+        return np.concatenate(kept)
