@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-EXECUTABLES = ["fusion_node"]
+EXECUTABLES = ["fusion_node", "lip_rig"]
 
 
 def _ros2_run_path(prefix_path: str, package: str, executable: str) -> Path:

@@ -292,6 +292,6 @@ class OusterModel:
             out[name] = np.nan
             flat[name][i] = xyz[:, axis]
         flat["range"][i] = range_mm
-        flat["intensity"][i] = np.minimum(signal, _U16_MAX)
+        flat["intensity"][i] = np.rint(np.minimum(signal, _U16_MAX))  # photon counts, as the driver reports them
         flat["reflectivity"][i] = np.clip(np.rint(100.0 * signal / falloff), 0, 255)
         return out

@@ -1,0 +1,181 @@
+"""Record a synthetic capture as a rosbag2 MCAP bag, with the contract's topics and a ground-truth sidecar.
+
+Topics: ``/ouster/points`` (PointCloud2, Ouster ``original``), ``/dot/<imu>/imu``
+(Imu), ``/gt/root_pose``, ``/gt/joint_poses``, ``/gt/joint_states``. Messages
+are CDR-serialised with the rosbags Jazzy typestore and written in receive
+(log) time order: a cloud is received when its sweep ends, an IMU sample a
+Bluetooth latency after its measurement, ground truth at its own stamp.
+
+Sidecars in the bag directory (ignored by ``ros2 bag``):
+``rig_truth.yaml`` (configuration, calibration truth, phases) and
+``rig_labels.npz`` (per frame: stamps and which pixels are the performer or another person).
+"""
+
+from __future__ import annotations
+
+import heapq
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+from lip_msgs_py import (
+    RosbagsBackend,
+    array_to_cloud,
+    imu_sample,
+    imu_to_msg,
+    joint_state_to_msg,
+    pose_array_to_msg,
+    pose_stamped_to_msg,
+)
+from lip_ros.core.rotations import matrix_to_quat
+from lip_ros.core.skeleton import joint_state_names, load_skeleton, local_rotations_to_joint_angles
+from lip_ros.rig.capture import CaptureFrame, CaptureSession
+
+__all__ = ["write_capture_bag", "TRUTH_FILE", "LABELS_FILE", "LIDAR_TOPIC", "GT_TOPICS"]
+
+TRUTH_FILE = "rig_truth.yaml"
+LABELS_FILE = "rig_labels.npz"
+LIDAR_TOPIC = "/ouster/points"
+LIDAR_FRAME = "os_lidar"
+GT_TOPICS = {"root": "/gt/root_pose", "joints": "/gt/joint_poses", "states": "/gt/joint_states"}
+IMU_LATENCY_NS = 20_000_000  # Bluetooth LE delivery of a DOT sample
+CLOUD_LATENCY_NS = 2_000_000  # driver time after the sweep ends
+
+_INFINITE = QosTime(sec=9223372036, nsec=854775807)  # as rosbag2 records rmw's infinite durations
+
+
+def _qos(reliability: QosReliability, depth: int) -> Qos:
+    return Qos(QosHistory.KEEP_LAST, depth, reliability, QosDurability.VOLATILE, _INFINITE, _INFINITE,
+               QosLiveliness.AUTOMATIC, _INFINITE, False)
+
+
+SENSOR_QOS = _qos(QosReliability.BEST_EFFORT, 5)  # rclpy qos_profile_sensor_data
+RELIABLE_QOS = _qos(QosReliability.RELIABLE, 10)
+
+
+def _truth_messages(backend: RosbagsBackend, names: list[str], cf: CaptureFrame) -> dict[str, Any]:
+    gt = cf.truth
+    quats = matrix_to_quat(gt.glob_rot)
+    return {
+        GT_TOPICS["root"]: pose_stamped_to_msg(backend, gt.stamp_ns, LIDAR_FRAME, gt.root_pos, quats[0]),
+        GT_TOPICS["joints"]: pose_array_to_msg(backend, gt.stamp_ns, LIDAR_FRAME, gt.joint_pos, quats),
+        GT_TOPICS["states"]: joint_state_to_msg(backend, gt.stamp_ns, LIDAR_FRAME, names,
+                                                local_rotations_to_joint_angles(gt.local_rot)),
+    }
+
+
+def _truth_sidecar(session: CaptureSession) -> dict[str, Any]:
+    m = session.motion
+    return {
+        "generator": "lip_ros.rig",
+        "config": session.config.as_dict(),
+        "epoch_ns": session.epoch_ns,
+        "lidar": {"frame_id": LIDAR_FRAME, "beams": session.lidar.beams, "columns": session.lidar.columns,
+                  "rate_hz": session.lidar.rate_hz, "height_m": session.config.lidar_height_m},
+        "performer": {"scenario": m.scenario,
+                      "body_scale": float(m.skeleton.pelvis_height / load_skeleton().pelvis_height),
+                      "girth": session.girth, "pelvis_height_m": float(m.skeleton.pelvis_height)},
+        "phases": [{"name": n, "start_ns": a, "end_ns": b} for n, a, b in session.phases_ns()],
+        "imu_calibration": session.imu_truth.as_dict(),
+    }
+
+
+class _Progress:
+    """A one-line progress counter on stderr."""
+
+    def __init__(self, total: int, label: str, enabled: bool) -> None:
+        self.total, self.label, self.enabled = total, label, enabled
+
+    def __call__(self, done: int) -> None:
+        if self.enabled and (done == self.total or done % 10 == 0):
+            end = "\n" if done == self.total else ""
+            print(f"\r{self.label}: {done}/{self.total} frames", end=end, file=sys.stderr, flush=True)
+
+
+def write_capture_bag(
+    session: CaptureSession,
+    out: Path,
+    progress: bool = True,
+    on_frame: Callable[[CaptureFrame], None] | None = None,
+) -> dict[str, int]:
+    """Simulate ``session`` and record it to the bag directory ``out`` (must not exist); message counts per topic."""
+    out = Path(out)
+    backend = RosbagsBackend()
+    names = joint_state_names(session.motion.skeleton)
+    streams = session.imu_streams()
+    counts: dict[str, int] = {}
+    pending: list[tuple[int, int, str, Any, str]] = []  # (log time, sequence, topic, message, type) min-heap
+    seq = 0
+
+    def push(log_ns: int, topic: str, msg: Any, msgtype: str) -> None:
+        nonlocal seq
+        heapq.heappush(pending, (log_ns, seq, topic, msg, msgtype))
+        seq += 1
+
+    for s in streams.values():
+        frame_id = f"dot_{s.name}"
+        for k in range(len(s.stamp_ns)):
+            sample = imu_sample(int(s.stamp_ns[k]), frame_id, s.quat[k], s.gyro[k], s.accel[k])
+            push(int(s.stamp_ns[k]) + IMU_LATENCY_NS, s.topic, imu_to_msg(backend, sample), "sensor_msgs/msg/Imu")
+
+    labels_idx: list[np.ndarray] = []
+    labels_actor: list[np.ndarray] = []
+    stamps: list[int] = []
+    truth_stamps: list[int] = []
+    report = _Progress(session.num_frames, f"lip_rig {out.name}", progress)
+    writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    with writer:
+        conns: dict[str, Any] = {}
+
+        def connection(topic: str, msgtype: str) -> Any:
+            if topic not in conns:
+                qos = RELIABLE_QOS if topic.startswith("/gt/") else SENSOR_QOS
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=backend.typestore,
+                                                     offered_qos_profiles=[qos])
+            return conns[topic]
+
+        def flush(before_ns: int | None) -> None:
+            while pending and (before_ns is None or pending[0][0] < before_ns):
+                log_ns, _, topic, msg, msgtype = heapq.heappop(pending)
+                writer.write(connection(topic, msgtype), log_ns, backend.serialize(msg, msgtype))
+                counts[topic] = counts.get(topic, 0) + 1
+
+        period = session.lidar.period_ns
+        for cf in session.frames():
+            stamp = cf.stamp_ns
+            cloud = array_to_cloud(backend, cf.frame.points, stamp, LIDAR_FRAME)
+            push(stamp + period + CLOUD_LATENCY_NS, LIDAR_TOPIC, cloud, "sensor_msgs/msg/PointCloud2")
+            for topic, msg in _truth_messages(backend, names, cf).items():
+                push(cf.truth.stamp_ns, topic, msg, msg.__msgtype__)
+            flat = np.flatnonzero(cf.frame.labels.ravel() >= 0)
+            labels_idx.append(flat.astype(np.int32))
+            labels_actor.append(cf.frame.labels.ravel()[flat].astype(np.int8))
+            stamps.append(stamp)
+            truth_stamps.append(cf.truth.stamp_ns)
+            flush(stamp + period)  # everything of later frames is logged after the next frame starts
+            report(cf.index + 1)
+            if on_frame is not None:
+                on_frame(cf)
+        flush(None)
+
+    offsets = np.concatenate([[0], np.cumsum([len(i) for i in labels_idx])]).astype(np.int64)
+    np.savez_compressed(
+        out / LABELS_FILE,
+        frame_stamp_ns=np.array(stamps, dtype=np.int64),
+        truth_stamp_ns=np.array(truth_stamps, dtype=np.int64),
+        shape=np.array(session.lidar.shape, dtype=np.int64),
+        offsets=offsets,
+        pixel=np.concatenate(labels_idx) if labels_idx else np.zeros(0, np.int32),
+        actor=np.concatenate(labels_actor) if labels_actor else np.zeros(0, np.int8),
+    )
+    with open(out / TRUTH_FILE, "w", encoding="utf-8") as f:
+        yaml.safe_dump(_truth_sidecar(session), f, sort_keys=False)
+    return counts
