@@ -13,7 +13,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 ROS_DOMAIN_ID ?= $(shell $(PYTHON) -c 'import random; print(random.randint(1, 100))')
 export ROS_DOMAIN_ID
 
-.PHONY: venv demo test bench urdf clean
+.PHONY: venv demo demo-bag test bench urdf clean
 
 venv: $(INSTALLED)
 
@@ -25,6 +25,12 @@ $(INSTALLED): setup.py setup.cfg package.xml
 
 demo: $(INSTALLED)
 	$(VENV)/bin/lip_rig inspect bags/demo_walk --plot $(OUT)/demo_walk.png
+
+# Regenerate the bundled demo bag (command documented in bags/README.md).
+demo-bag: $(INSTALLED)
+	rm -rf bags/demo_walk
+	$(VENV)/bin/lip_rig make-bag --scenario walk --seconds 13 --seed 1 --distance 6 --columns 512 \
+		--azimuth-window 150 210 --out bags/demo_walk
 
 test: $(INSTALLED)
 	$(PY) -m pytest test -q -p no:cacheprovider
