@@ -17,7 +17,9 @@ from lip_ros.core.skeleton import forward_kinematics, joint_angles_to_local_rota
 from lip_ros.rig.bag import GT_TOPICS, LABELS_FILE, LIDAR_TOPIC, TRUTH_FILE, write_capture_bag
 from lip_ros.rig.capture import CaptureConfig, CaptureSession
 from lip_ros.rig.cli import main as lip_rig
+from lip_ros.rig.inspect import summarize_bag
 
+DEMO_BAG = Path(__file__).resolve().parents[1] / "bags" / "demo_walk"
 CONFIG = CaptureConfig(scenario="walk", seconds=13.0, seed=5, columns=512, second_person=True)
 
 
@@ -86,15 +88,16 @@ def test_clouds_are_organized_ouster_original(bag: Path) -> None:
     np.testing.assert_allclose(r, pts["range"][ok] * 1e-3, atol=1e-5 * r.max())
 
 
-def test_labelled_points_lie_on_the_true_body_and_truth_is_stamped_when_scanned(bag: Path) -> None:
+def _check_labelled_points(bag: Path, step: int) -> None:
+    """Every ``step``-th frame: performer points on the true body surface, truth stamped when scanned."""
     session = _session_from_sidecar(bag)
     clouds = list(read_messages(bag, [LIDAR_TOPIC]))
     truth = [msg_to_pose_array(m.msg) for m in read_messages(bag, [GT_TOPICS["joints"]])]
+    assert len(clouds) == len(truth) == session.num_frames
     with np.load(bag / LABELS_FILE, allow_pickle=False) as z:
         offsets, pixel, actor = z["offsets"], z["pixel"], z["actor"]
         assert np.array_equal(z["frame_stamp_ns"], [read_header(c.msg)[0] for c in clouds])
-    assert set(np.unique(actor)) == {0, 1}  # performer and bystander
-    for k in range(0, len(clouds), 17):
+    for k in range(0, len(clouds), step):
         a, b = offsets[k], offsets[k + 1]
         flat = cloud_to_array(clouds[k].msg).reshape(-1)[pixel[a:b][actor[a:b] == 0]]
         assert len(flat) > 20
@@ -105,6 +108,27 @@ def test_labelled_points_lie_on_the_true_body_and_truth_is_stamped_when_scanned(
         # the contract's stamp: frame stamp + mean per-point time of the performer's points
         expected = read_header(clouds[k].msg)[0] + flat["t"].astype(np.float64).mean()
         assert abs(gt.stamp_ns - expected) <= 1
+
+
+def test_labelled_points_lie_on_the_true_body_and_truth_is_stamped_when_scanned(bag: Path) -> None:
+    with np.load(bag / LABELS_FILE, allow_pickle=False) as z:
+        assert set(np.unique(z["actor"])) == {0, 1}  # performer and bystander
+    _check_labelled_points(bag, step=17)
+
+
+def test_bundled_demo_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The demo bag replays: the rig's claims hold for it, and `lip_rig inspect --plot` reports and draws it."""
+    _check_labelled_points(DEMO_BAG, step=13)
+    summary = summarize_bag(DEMO_BAG)
+    assert summary.cloud_shape == (128, 512)
+    assert min(summary.performer_points) > 50
+    assert len(summary.imu_rest_norm) == 4
+    for topic, norm in summary.imu_rest_norm.items():
+        assert norm == pytest.approx(9.81, abs=0.1) and summary.imu_rest_up[topic] > 0.999
+    png = tmp_path / "demo.png"
+    assert lip_rig(["inspect", str(DEMO_BAG), "--plot", str(png)]) == 0
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+    assert "/ouster/points" in capsys.readouterr().out
 
 
 def test_truth_topics_agree(bag: Path) -> None:

@@ -45,6 +45,7 @@ class Skeleton:
     lip_imus: dict[str, dict[str, str]] = field(default_factory=dict)
     suit_imus: dict[str, str] = field(default_factory=dict)
     calibration_poses: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    scale: float = 1.0  # size relative to the contract skeleton (see ``scaled``)
 
     def index(self, name: str) -> int:
         """Index of the joint called ``name``."""
@@ -74,6 +75,7 @@ class Skeleton:
             self.lip_imus,
             self.suit_imus,
             self.calibration_poses,
+            self.scale * scale,
         )
 
 

@@ -35,7 +35,7 @@ from lip_msgs_py import (
     pose_stamped_to_msg,
 )
 from lip_ros.core.rotations import matrix_to_quat
-from lip_ros.core.skeleton import joint_state_names, load_skeleton, local_rotations_to_joint_angles
+from lip_ros.core.skeleton import joint_state_names, local_rotations_to_joint_angles
 from lip_ros.rig.capture import CaptureFrame, CaptureSession
 
 __all__ = ["write_capture_bag", "TRUTH_FILE", "LABELS_FILE", "LIDAR_TOPIC", "GT_TOPICS"]
@@ -80,7 +80,7 @@ def _truth_sidecar(session: CaptureSession) -> dict[str, Any]:
         "lidar": {"frame_id": LIDAR_FRAME, "beams": session.lidar.beams, "columns": session.lidar.columns,
                   "rate_hz": session.lidar.rate_hz, "height_m": session.config.lidar_height_m},
         "performer": {"scenario": m.scenario,
-                      "body_scale": float(m.skeleton.pelvis_height / load_skeleton().pelvis_height),
+                      "body_scale": m.skeleton.scale,
                       "girth": session.girth, "pelvis_height_m": float(m.skeleton.pelvis_height)},
         "phases": [{"name": n, "start_ns": a, "end_ns": b} for n, a, b in session.phases_ns()],
         "imu_calibration": session.imu_truth.as_dict(),

@@ -22,10 +22,9 @@ import numpy as np
 
 from lip_ros.core.skeleton import Skeleton
 
-__all__ = ["BodyModel", "REFERENCE_PELVIS_HEIGHT"]
+__all__ = ["BodyModel"]
 
-#: Pelvis height of the skeleton the capsule table below is drawn for (metres).
-REFERENCE_PELVIS_HEIGHT = 0.95
+# The capsule table below is drawn for the contract skeleton (scale 1); it scales with ``skeleton.scale``.
 
 _SKIN, _CLOTH = 0, 1
 
@@ -131,7 +130,7 @@ class BodyModel:
             raise ValueError("girth must be positive")
         self.skeleton = skeleton
         self.girth = float(girth)
-        size = skeleton.pelvis_height / REFERENCE_PELVIS_HEIGHT
+        size = skeleton.scale
         table = _part_table()
         self.names: tuple[str, ...] = tuple(row[0] for row in table)
         self._ja = np.array([skeleton.index(row[1]) for row in table])

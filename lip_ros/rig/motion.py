@@ -28,11 +28,11 @@ from scipy.ndimage import gaussian_filter1d, minimum_filter1d
 
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, rot_z
 from lip_ros.core.skeleton import Skeleton, load_skeleton
-from lip_ros.rig.motion_acts import build_arms, build_dance, build_jump, build_martial, build_squat
+from lip_ros.rig.motion_acts import build_arms, build_dance, build_jump, build_martial, build_squat, build_turn
 from lip_ros.rig.motion_body import R_L_M_FORWARD, BodyRig
 from lip_ros.rig.motion_clips import Anchor, Area, Clip, Style
 from lip_ros.rig.motion_gait import GaitClip
-from lip_ros.rig.motion_primitives import smoothstep
+from lip_ros.rig.motion_primitives import smoothstep, wrap_angle
 from lip_ros.rig.trajectory import BodyPose
 
 __all__ = [
@@ -305,7 +305,13 @@ def make_motion(
         if name == "transition":
             plan.append((name, _Gap(d)))
             continue
-        clip = _BUILDERS[name](rig, style, np.random.default_rng([seed, 10 + k]), anchor, d, area)
+        rng = np.random.default_rng([seed, 10 + k])
+        heading = _loop_heading(anchor, area) if name in ("walk", "run") else None
+        if heading is not None:  # turn first: no room for a loop ahead
+            turn = build_turn(rig, style, rng, anchor, heading)
+            plan.append(("turn", _Play(turn, rig)))
+            anchor, d = turn.end, d - turn.duration
+        clip = _BUILDERS[name](rig, style, rng, anchor, d, area)
         plan.append((name, _Play(clip, rig)))
         anchor = clip.end
     pieces = [
@@ -313,6 +319,20 @@ def make_motion(
         for k, (name, p) in enumerate(plan)
     ]
     return PerformerMotion(rig.skeleton, scenario, pieces, lidar_height, centre_xy, area.radius)
+
+
+def _loop_heading(anchor: Anchor, area: Area) -> float | None:
+    """The heading to turn to before walking a loop from the anchor, or None if the body may start as it faces.
+
+    Well off the centre a loop fits only heading roughly along the rim, not outwards: then the
+    body turns to the nearer direction along the rim.
+    """
+    offset = anchor.xy - area.centre
+    distance = np.linalg.norm(offset)
+    outward = np.arctan2(offset[1], offset[0])
+    if distance < 0.3 * area.radius or abs(wrap_angle(anchor.heading - outward)) > np.radians(70.0):
+        return None
+    return float(outward + np.copysign(0.5 * np.pi, wrap_angle(anchor.heading - outward)))
 
 
 def random_scenario(rng: np.random.Generator) -> str:

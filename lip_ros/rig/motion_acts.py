@@ -16,9 +16,9 @@ import numpy as np
 
 from lip_ros.rig.motion_body import BodyRig
 from lip_ros.rig.motion_clips import Anchor, Area, Choreo, PostureClip, Style
-from lip_ros.rig.motion_primitives import GRAVITY, rotate_2d, smoothstep_inverse
+from lip_ros.rig.motion_primitives import GRAVITY, rotate_2d, smoothstep_inverse, wrap_angle
 
-__all__ = ["build_squat", "build_jump", "build_arms", "build_martial", "build_dance"]
+__all__ = ["build_squat", "build_jump", "build_arms", "build_martial", "build_dance", "build_turn"]
 
 
 def build_squat(
@@ -59,7 +59,7 @@ def build_squat(
             c.key(t + down + bottom, **low)
         c.relax(t + down + bottom + up, *low)
         t += down + bottom + up + top
-    _shuffle_stance(c, max(t, end), 0.0, 0.0)
+    _shuffle_stance(c, min(max(t, end), duration - 1.7), 0.0, 0.0)
     return c.build()
 
 
@@ -345,7 +345,7 @@ def build_martial(
     c.relax(t0, *names)
     c.key(t0 + 0.9, **guard)
     t = t0 + 0.9 + u(0.3, 0.6)
-    fight_end = duration - 1.6
+    fight_end = duration - 1.0  # then 0.9 s to step out
     punches = {"jab": _jab, "cross": _cross, "hook": _hook, "uppercut": _uppercut}
     while True:
         kind = rng.choice(["jab", "cross", "hook", "uppercut", "kick", "knee"], p=[0.28, 0.24, 0.12, 0.1, 0.16, 0.1])
@@ -358,7 +358,7 @@ def build_martial(
             c.key(t + _MARTIAL_TIME[kind] * tp, **{n: guard.get(n, c.rest(n)) for n in strike})
         else:
             _kick(c, t, kind, rear if rng.random() < 0.6 else lead, feet, guard, rng)
-        t += _MARTIAL_TIME[kind] * tp + u(0.2, 0.7) * tp
+        t = min(t + _MARTIAL_TIME[kind] * tp + u(0.2, 0.7) * tp, fight_end)
     c.osc({"z": u(0.01, 0.025) * s}, u(1.6, 2.4), t0 + 0.9, t, ramp=0.4)
     t = max(t, t0 + 1.2)
     c.hold(t, *names)
@@ -580,26 +580,35 @@ def _sway(c: Choreo, t: float, beat: float, rng: np.random.Generator) -> float:
 
 
 def _turn(c: Choreo, t: float, beat: float, rng: np.random.Generator) -> float:
-    direction = 1.0 if rng.random() < 0.5 else -1.0
-    uv = np.array([c.value("u", t), c.value("v", t)])
-    yaw0 = c.value("yaw", t)
     arms = {"l_e": -0.6, "r_e": -0.6, "l_elbow": 1.2, "r_elbow": 1.2, "l_f": 0.5, "r_f": 0.5}
-    c.hold(t, "yaw")
     c.relax(t, *arms)
     c.key(t + beat, **arms)
-    first = 0 if direction > 0 else 1  # the foot on the inside of the turn leads
-    for k in range(4):
-        yaw = yaw0 + direction * (k + 1) * 0.5 * np.pi
-        tb = t + k * beat
-        c.key(tb + beat, yaw=yaw)
-        for j, side in enumerate((first, 1 - first)):
-            c.step(
-                side,
-                tb + (0.05 + 0.45 * j) * beat,
-                tb + (0.45 + 0.45 * j) * beat,
-                c.stance_foot(side, uv, yaw),
-                yaw,
-                lift=0.04,
-            )
+    _stepping_turn(c, t, (1.0 if rng.random() < 0.5 else -1.0) * 2.0 * np.pi, 4, beat)
     c.relax(t + 4.5 * beat, *arms)
     return t + 4.5 * beat
+
+
+def _stepping_turn(c: Choreo, t: float, angle: float, steps: int, step_time: float) -> float:
+    """Turn on the spot by ``angle`` in ``steps`` equal steps of ``step_time`` each (both feet); returns the end."""
+    uv = np.array([c.value("u", t), c.value("v", t)])
+    yaw0 = c.value("yaw", t)
+    c.hold(t, "yaw")
+    first = 0 if angle > 0 else 1  # the foot on the inside of the turn leads
+    for k in range(steps):
+        yaw = yaw0 + angle * (k + 1) / steps
+        tk = t + k * step_time
+        c.key(tk + step_time, yaw=yaw)
+        for j, side in enumerate((first, 1 - first)):
+            lift, land = tk + (0.05 + 0.45 * j) * step_time, tk + (0.45 + 0.45 * j) * step_time
+            c.step(side, lift, land, c.stance_foot(side, uv, yaw), yaw, lift=0.04)
+    return t + steps * step_time
+
+
+def build_turn(rig: BodyRig, style: Style, rng: np.random.Generator, anchor: Anchor, heading: float) -> PostureClip:
+    """Turn on the spot, in steps of at most 60 degrees, to face ``heading`` (its duration follows)."""
+    angle = float(wrap_angle(heading - anchor.heading))
+    steps = int(np.ceil(abs(angle) / np.radians(60.0)))
+    step_time = rng.uniform(0.5, 0.7) * style.tempo
+    c = Choreo("turn", rig, style, anchor, steps * step_time + 0.4)
+    _stepping_turn(c, 0.2, angle, steps, step_time)
+    return c.build()

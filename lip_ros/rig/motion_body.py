@@ -5,8 +5,9 @@ position and heading in the ground frame (the LiDAR frame L shifted down to the
 ground: x forward, y left, z up, ground at z = 0), a posture vector of angles,
 and where each foot is (ankle target, yaw, pitch). :meth:`BodyRig.solve` turns
 it into local joint rotations: the upper body from Euler angles, each leg by
-analytic two-bone IK (the knee bends forward only), the pelvis lowered where a
-planted foot would otherwise be out of reach.
+analytic two-bone IK (the knee bends forward only; a foot in the air is kept
+from snapping the leg straight). :meth:`BodyRig.reach_limit` tells how high
+the pelvis may be for the planted feet to stay in reach.
 
 Joint angles are stored in the *left-side convention*: a right-side joint holds
 the angles of the mirrored left-side motion (so the same numbers pose both arms
@@ -27,7 +28,6 @@ from lip_ros.core.skeleton import NUM_JOINTS, Skeleton, forward_kinematics
 from lip_ros.rig.motion_primitives import bump, euler_chain, smoothstep, soft_clamp, softplus, wrap_angle
 
 __all__ = [
-    "REFERENCE_PELVIS_HEIGHT",
     "R_L_M_FORWARD",
     "POSTURE_SIZE",
     "CHANNELS",
@@ -38,8 +38,6 @@ __all__ = [
     "sole_points",
 ]
 
-#: Pelvis height above the soles of the contract's reference skeleton (metres).
-REFERENCE_PELVIS_HEIGHT = 0.95
 #: Orientation in L of an upright body facing +x of L (model z -> x, y -> z, x -> y).
 R_L_M_FORWARD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
@@ -137,7 +135,7 @@ class FootPlan:
     strike_time: np.ndarray  # (N,)
     push: np.ndarray  # (N,)
     push_time: np.ndarray  # (N,)
-    clearance: np.ndarray | None = None  # (N,) plateau height of the swing after each plant
+    clearance: np.ndarray  # (N,) plateau height of the swing after each plant
     peak: float = 0.5  # where in the swing the bump is highest (fraction)
 
     def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -156,17 +154,14 @@ class FootPlan:
         w = smoothstep(sigma)
         xy = self.xy[i] + w[:, None] * (self.xy[j] - self.xy[i])
         yaw = self.yaw[i] + w * wrap_angle(self.yaw[j] - self.yaw[i])
-        clearance = np.zeros(n) if self.clearance is None else self.clearance
-        height = self.lift[i] * bump(sigma, self.peak) + clearance[i] * smoothstep(5.0 * sigma) * smoothstep(
-            5.0 * (1.0 - sigma)
-        )
+        plateau = smoothstep(5.0 * sigma) * smoothstep(5.0 * (1.0 - sigma))
+        height = self.lift[i] * bump(sigma, self.peak) + self.clearance[i] * plateau
         rolled = self.strike[i] * (1.0 - smoothstep((t - self.start[i]) / self.strike_time[i]))
         pushed = self.push[i] * smoothstep((t - self.end[i] + self.push_time[i]) / self.push_time[i])
         stance = rolled + pushed
         swing = self.push[i] + w * (self.strike[j] - self.push[i])
-        airborne = (
-            smoothstep(4.0 * sigma) * smoothstep(4.0 * (1.0 - sigma)) * smoothstep((self.lift[i] + clearance[i]) / 0.02)
-        )
+        lifted = smoothstep((self.lift[i] + self.clearance[i]) / 0.02)
+        airborne = smoothstep(4.0 * sigma) * smoothstep(4.0 * (1.0 - sigma)) * lifted
         return xy, yaw, height, np.where(planted, stance, swing), airborne
 
 
@@ -185,7 +180,7 @@ class Drive:
     airborne: np.ndarray  # (T, 2) 0 for a foot on the ground, 1 for one in the air (the pelvis need not reach it)
 
 
-def _swing(v: np.ndarray, t: np.ndarray) -> np.ndarray:
+def _shortest_rotation(v: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(T, 3, 3) shortest rotations turning directions ``v`` to ``t`` (both (T, 3))."""
     v = v / np.linalg.norm(v, axis=-1, keepdims=True)
     t = t / np.linalg.norm(t, axis=-1, keepdims=True)
@@ -203,13 +198,13 @@ class BodyRig:
     KNEE_NEUTRAL = np.radians(5.0)  # knee flexion of the relaxed standing pose
     KNEE_CAP = KNEE_NEUTRAL  # planted legs are kept at least this bent (see reach_limit)
     KNEE_MIN = np.radians(0.75)  # the IK never straightens a knee further
+    KNEE_SWING = np.radians(8.0)  # a foot in the air is kept within reach of this knee flexion ...
+    _SWING_EASE = np.radians(30.0)  # ... easing in from this flexion on
     _PIVOT_BLEND = 0.08  # rad of pitch over which the foot's pivot moves from heel to ball
-    KNEE_SWING = np.radians(8.0)  # a foot in the air is kept within reach of this knee flexion,
-    _SWING_EASE = np.radians(30.0)  # easing in from this flexion on
 
     def __init__(self, skeleton: Skeleton) -> None:
         self.skeleton = skeleton
-        self.scale = skeleton.pelvis_height / REFERENCE_PELVIS_HEIGHT
+        self.scale = skeleton.scale
         off = skeleton.offsets
         _, rest = forward_kinematics(skeleton, np.tile(np.eye(3), (NUM_JOINTS, 1, 1)))
         legs = np.array(_LEGS)
@@ -342,7 +337,7 @@ class BodyRig:
             knees_out = post[:, _KNEE_OUT + side] * (1.0 if side == 0 else -1.0)
             r_twist = rot_y(wrap_angle(drive.foot_yaw[:, side] - pelvis_yaw) + knees_out)
             target = np.einsum("tba,tb->ta", r_pelvis, vec)  # in the pelvis frame
-            r_hip = _swing(np.einsum("tab,tb->ta", r_twist, leg), target) @ r_twist
+            r_hip = _shortest_rotation(np.einsum("tab,tb->ta", r_twist, leg), target) @ r_twist
             pitch = drive.foot_pitch[:, side]
             r_foot = rot_z(drive.foot_yaw[:, side]) @ R_L_M_FORWARD @ rot_x(pitch)
             local[:, hip_j] = r_hip
@@ -357,7 +352,7 @@ def sole_points(skeleton: Skeleton, glob_rot: np.ndarray, joint_pos: np.ndarray)
 
     ``glob_rot`` (..., 24, 3, 3) and ``joint_pos`` (..., 24, 3) as from forward kinematics.
     """
-    s = skeleton.pelvis_height / REFERENCE_PELVIS_HEIGHT
+    s = skeleton.scale
     legs = np.array(_LEGS)
     pts = []
     for joints, local in ((legs[:, 2], _HEEL), (legs[:, 3], _BALL), (legs[:, 3], _TOE)):

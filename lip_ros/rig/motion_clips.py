@@ -194,8 +194,10 @@ class Choreo:
         return keys[max(earlier)] if earlier else self.rest(name)
 
     def key(self, t: float, **values: float) -> None:
-        """Key channels at time ``t`` to absolute ``values``."""
-        t = float(np.clip(t, 0.0, self.duration))
+        """Key channels at time ``t`` (within the clip) to absolute ``values``."""
+        if not -1e-9 <= t <= self.duration + 1e-9:
+            raise ValueError(f"{self.name}: key at {t:.3f} s outside the clip (0 .. {self.duration:.3f} s)")
+        t = min(max(round(t, 6), 0.0), self.duration)
         for name, v in values.items():
             if name not in CHANNELS:
                 raise KeyError(f"unknown posture channel {name!r}")
@@ -281,6 +283,5 @@ class Choreo:
             return np.array([getattr(p, attr) for p in plants], dtype=np.float64)
 
         flat, ones = np.zeros(len(plants)), np.ones(len(plants))  # feet roll with the pitch channels instead
-        return FootPlan(
-            col("start"), col("end"), np.array([p.uv for p in plants]), col("yaw"), col("lift"), flat, ones, flat, ones
-        )
+        uv, lift = np.array([p.uv for p in plants]), col("lift")
+        return FootPlan(col("start"), col("end"), uv, col("yaw"), lift, flat, ones, flat, ones, clearance=flat)

@@ -127,7 +127,8 @@ class GaitClip:
         self.p = p = _Gait.draw(rng, style, rig.scale, run)
         # the gait runs between a stride after the start and a stride before the end, so that the first
         # and the last steps have zero amplitude and the clip is at rest at both ends
-        self._start, self._stop = 1.0 / p.cadence, duration - 1.0 / p.cadence
+        self._start = min(1.0 / p.cadence, 0.25 * duration)
+        self._stop = duration - self._start
         self._ramp = min(p.ramp, (self._stop - self._start) / 3.0)
         self.path, self._s = self._plan_path(rng, anchor, area)
         end_xy, end_heading, _ = self.path.at(self._s(np.array([duration])))
@@ -141,8 +142,10 @@ class GaitClip:
 
     def _plan_path(self, rng: np.random.Generator, anchor: Anchor, area: Area) -> tuple[LoopPath, CubicSpline]:
         """The largest loop through the anchor inside the area, and the distance walked along it over time."""
-        margin = 0.45 * self.rig.scale
-        shape = "oval" if self.run or rng.random() < 0.6 else "eight"
+        # keep clear of the rim (room for the limbs), unless the body already stands closer to it
+        limit = min(area.radius, max(area.radius - 0.45 * self.rig.scale, area.radius - area.room(anchor.xy) + 0.05))
+        central = area.room(anchor.xy) > 0.7 * area.radius  # a figure eight fits round the centre only
+        shape = "eight" if central and not self.run and rng.random() < 0.4 else "oval"
         harmonics = (
             (rng.uniform(-0.2, 0.1), rng.uniform(-0.05, 0.05)) if shape == "oval" else (rng.uniform(-0.35, -0.1), 0.0)
         )
@@ -153,7 +156,7 @@ class GaitClip:
         lo, hi = 0.05, 100.0  # longest loop inside the area (bisection)
         for _ in range(40):
             mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if unit.with_length(mid).max_distance(area.centre) <= area.radius - margin else (lo, mid)
+            lo, hi = (mid, hi) if unit.with_length(mid).max_distance(area.centre) <= limit else (lo, mid)
         path = unit.with_length(lo)
         return path, CubicSpline(*self._integrate(path), bc_type="clamped")  # at rest at both ends
 
