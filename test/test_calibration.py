@@ -9,7 +9,6 @@ import pytest
 
 from lip_ros.core.calibration import (
     POSES,
-    R_L_M_FACING_X,
     Calibration,
     CalibrationConfig,
     CalibrationDetector,
@@ -20,6 +19,7 @@ from lip_ros.core.calibration import (
     load_calibration,
     save_calibration,
 )
+from lip_ros.core.frames import R_L_M_FACING_X
 from lip_ros.core.rotations import (
     axis_angle_to_matrix,
     geodesic_angle,

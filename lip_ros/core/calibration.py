@@ -44,6 +44,7 @@ import yaml
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from lip_ros.core.frames import GRAVITY
 from lip_ros.core.imu_sync import ImuArrays, ImuSeries
 from lip_ros.core.rotations import (
     axis_angle_to_matrix,
@@ -57,10 +58,8 @@ from lip_ros.core.rotations import (
 from lip_ros.core.skeleton import Skeleton, forward_kinematics, load_skeleton
 
 __all__ = [
-    "GRAVITY",
     "CALIBRATION_VERSION",
     "POSES",
-    "R_L_M_FACING_X",
     "CalibrationError",
     "CalibrationConfig",
     "Calibration",
@@ -73,13 +72,9 @@ __all__ = [
     "CalibrationDetector",
 ]
 
-GRAVITY = 9.81  # m/s^2, as the contract states
 CALIBRATION_VERSION = 1
 #: The calibration poses of the contract, in the order they are held.
 POSES = ("a_pose", "t_pose")
-#: An upright body facing +x of L (model forward z -> x of L, up y -> z, left x -> y);
-#: a body facing the heading h has ``R_L_M = Rz(h) @ R_L_M_FACING_X``.
-R_L_M_FACING_X = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 _UP_M = np.array([0.0, 1.0, 0.0])
 _UP = np.array([0.0, 0.0, 1.0])  # of I and of L
 _MIN_STILL_SAMPLES = 3  # per sensor in a stillness window

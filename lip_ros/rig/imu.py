@@ -26,12 +26,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.signal import lfilter
 
+from lip_ros.core.frames import GRAVITY
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_quat, rot_z
 from lip_ros.core.skeleton import Skeleton
 from lip_ros.rig.trajectory import Trajectory
 
 __all__ = [
-    "GRAVITY",
     "ImuSpec",
     "ImuRigConfig",
     "ImuTruth",
@@ -41,7 +41,6 @@ __all__ = [
     "simulate_imus",
 ]
 
-GRAVITY = 9.81  # m/s^2, as the contract states
 _WINDOW_S = 10.0  # trajectory time sampled per batch (bounds memory on long captures)
 _JITTER_CLIP = 3.0  # stamp jitter is a normal clipped at this many standard deviations
 

@@ -29,7 +29,8 @@ from scipy.ndimage import gaussian_filter1d, minimum_filter1d
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, rot_z
 from lip_ros.core.skeleton import Skeleton, load_skeleton
 from lip_ros.rig.motion_acts import build_arms, build_dance, build_jump, build_martial, build_squat, build_turn
-from lip_ros.rig.motion_body import R_L_M_FORWARD, BodyRig
+from lip_ros.core.frames import R_L_M_FACING_X
+from lip_ros.rig.motion_body import BodyRig
 from lip_ros.rig.motion_clips import Anchor, Area, Clip, Style
 from lip_ros.rig.motion_gait import GaitClip
 from lip_ros.rig.motion_primitives import smoothstep, wrap_angle
@@ -230,7 +231,7 @@ def _calibration(rig: BodyRig, seed: int, anchor: Anchor) -> list[tuple[str, _Ho
     (a_name, *a), (at_name, *at), (t_name, *tt), (to_name, *to) = _CALIBRATION
     root = np.array([anchor.xy[0], anchor.xy[1], rig.stand_height])
     a_pose, t_pose = rig.skeleton.pose_local_rotations("a_pose"), rig.skeleton.pose_local_rotations("t_pose")
-    a_pose[0] = t_pose[0] = rot_z(anchor.heading) @ R_L_M_FORWARD
+    a_pose[0] = t_pose[0] = rot_z(anchor.heading) @ R_L_M_FACING_X
     return [
         (a_name, _Hold(rng.uniform(*a), root, a_pose)),
         (at_name, _Blend(rng.uniform(*at), (root, a_pose), (root, t_pose))),

@@ -16,7 +16,8 @@ import numpy as np
 
 from lip_ros.rig.motion_body import BodyRig
 from lip_ros.rig.motion_clips import Anchor, Area, Choreo, PostureClip, Style
-from lip_ros.rig.motion_primitives import GRAVITY, rotate_2d, smoothstep_inverse, wrap_angle
+from lip_ros.core.frames import GRAVITY
+from lip_ros.rig.motion_primitives import rotate_2d, smoothstep_inverse, wrap_angle
 
 __all__ = ["build_squat", "build_jump", "build_arms", "build_martial", "build_dance", "build_turn"]
 

@@ -23,12 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lip_ros.core.frames import R_L_M_FACING_X
 from lip_ros.core.rotations import rot_x, rot_y, rot_z
 from lip_ros.core.skeleton import NUM_JOINTS, Skeleton, forward_kinematics
 from lip_ros.rig.motion_primitives import bump, euler_chain, smoothstep, soft_clamp, softplus, wrap_angle
 
 __all__ = [
-    "R_L_M_FORWARD",
     "POSTURE_SIZE",
     "CHANNELS",
     "posture",
@@ -39,7 +39,6 @@ __all__ = [
 ]
 
 #: Orientation in L of an upright body facing +x of L (model z -> x, y -> z, x -> y).
-R_L_M_FORWARD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 # Sole points of the reference body in bone frames, matching the foot capsules of
 # lip_ros.rig.body: heel under the ankle (ankle frame), ball and toe tip (foot frame).
@@ -271,7 +270,7 @@ class BodyRig:
         flat = np.column_stack([xy, self.ankle_height[side] + height])
         if planar:
             return flat + disp[:, [2, 0, 1]]
-        return flat + np.einsum("tab,tb->ta", rot_z(yaw) @ R_L_M_FORWARD, disp)
+        return flat + np.einsum("tab,tb->ta", rot_z(yaw) @ R_L_M_FACING_X, disp)
 
     def toe_flat(self, pitch: np.ndarray, rise: np.ndarray) -> np.ndarray:
         """Toe flexion keeping the toes flat on the ground when the heel is raised (fading as the foot rises)."""
@@ -281,7 +280,7 @@ class BodyRig:
     def _pelvis_frame(self, drive: Drive) -> tuple[np.ndarray, np.ndarray]:
         """Pelvis rotations (T, 3, 3) and hip offsets in the world (T, 2, 3)."""
         tilt = euler_chain(drive.posture[:, [TWIST, PITCH, ROLL]], "yxz")
-        r_pelvis = rot_z(drive.heading) @ R_L_M_FORWARD @ tilt
+        r_pelvis = rot_z(drive.heading) @ R_L_M_FACING_X @ tilt
         return r_pelvis, np.einsum("tab,sb->tsa", r_pelvis, self.hip_off)
 
     def _caps(self, drive: Drive, hips: np.ndarray) -> np.ndarray:
@@ -339,7 +338,7 @@ class BodyRig:
             target = np.einsum("tba,tb->ta", r_pelvis, vec)  # in the pelvis frame
             r_hip = _shortest_rotation(np.einsum("tab,tb->ta", r_twist, leg), target) @ r_twist
             pitch = drive.foot_pitch[:, side]
-            r_foot = rot_z(drive.foot_yaw[:, side]) @ R_L_M_FORWARD @ rot_x(pitch)
+            r_foot = rot_z(drive.foot_yaw[:, side]) @ R_L_M_FACING_X @ rot_x(pitch)
             local[:, hip_j] = r_hip
             local[:, knee_j] = r_knee
             local[:, ankle_j] = np.swapaxes(r_pelvis @ r_hip @ r_knee, -1, -2) @ r_foot

@@ -9,7 +9,8 @@ from scipy.interpolate import CubicSpline
 
 from lip_ros.rig.motion_body import BodyRig, Drive, FootPlan, posture
 from lip_ros.rig.motion_clips import Anchor, Area, Style, plan_feet
-from lip_ros.rig.motion_primitives import GRAVITY, LoopPath, rotate_2d, smoothstep
+from lip_ros.core.frames import GRAVITY
+from lip_ros.rig.motion_primitives import LoopPath, rotate_2d, smoothstep
 
 __all__ = ["GaitClip"]
 

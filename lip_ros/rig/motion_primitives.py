@@ -18,7 +18,6 @@ from scipy.optimize import brentq
 from lip_ros.core.rotations import rot_x, rot_y, rot_z
 
 __all__ = [
-    "GRAVITY",
     "smoothstep",
     "smoothstep_inverse",
     "bump",
@@ -34,7 +33,6 @@ __all__ = [
 ]
 
 #: Standard gravity (m/s^2).
-GRAVITY = 9.81
 _AXES = {"x": rot_x, "y": rot_y, "z": rot_z}
 _INV_GRID = np.linspace(0.0, 1.0, 2001)
 
