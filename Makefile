@@ -38,6 +38,7 @@ test: $(INSTALLED)
 bench: $(INSTALLED)
 	$(PY) benchmarks/bench_msgs.py
 	$(PY) benchmarks/bench_rig_lidar.py
+	$(PY) benchmarks/bench_dds_clouds.py
 
 urdf: $(INSTALLED)
 	$(PY) -m lip_ros.tools.make_urdf

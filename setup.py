@@ -53,6 +53,10 @@ setup(
         "console_scripts": [
             "fusion_node = lip_ros.nodes.fusion_node:main",
             "lip_rig = lip_ros.rig.cli:main",
+            "lip_train = lip_ros.train.cli:main",
+            "lip_eval = lip_ros.evaluation.cli:main",
+            "lip_bag_play = lip_ros.tools.bag_play:main",
+            "lip_bag_record = lip_ros.tools.bag_record:main",
         ],
     },
 )

@@ -9,7 +9,7 @@ depend on ``lip_ros``: pass skeleton names and parents in, e.g.
 ``lip_ros.core.skeleton.joint_state_names(skeleton)`` and ``skeleton.parents``.
 """
 
-from lip_msgs_py.backend import Backend, RclpyBackend, RosbagsBackend
+from lip_msgs_py.backend import Backend, RclpyBackend, RosbagsBackend, rclpy_message_class
 from lip_msgs_py.diagnostics import (
     Diagnostic,
     DiagnosticLevel,
@@ -51,6 +51,7 @@ __all__ = [
     "Backend",
     "RclpyBackend",
     "RosbagsBackend",
+    "rclpy_message_class",
     "MalformedMessageError",
     "stamp_to_ns",
     "ns_to_sec_nanosec",

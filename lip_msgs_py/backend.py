@@ -25,7 +25,7 @@ from lip_msgs_py.stamps import ns_to_sec_nanosec
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
-__all__ = ["Backend", "RclpyBackend", "RosbagsBackend"]
+__all__ = ["Backend", "RclpyBackend", "RosbagsBackend", "rclpy_message_class"]
 
 #: Non-zero default values declared in the .msg files of the interfaces used with
 #: rosbags (its typestore drops them; rclpy applies them), so both backends agree.
@@ -66,7 +66,8 @@ class Backend(ABC):
 
 
 @lru_cache(maxsize=None)
-def _rclpy_class(type_name: str) -> type:
+def rclpy_message_class(type_name: str) -> type:
+    """The rclpy class of ``type_name`` ('pkg/msg/Name'); KeyError if its Python package is not installed."""
     try:
         package, kind, name = type_name.split("/")
         return getattr(importlib.import_module(f"{package}.{kind}"), name)
@@ -85,7 +86,7 @@ class RclpyBackend(Backend):
         self._ctor_kwargs = {} if check_fields is None else {"check_fields": check_fields}
 
     def msg(self, type_name: str, **fields: Any) -> Any:
-        m = _rclpy_class(type_name)(**self._ctor_kwargs)
+        m = rclpy_message_class(type_name)(**self._ctor_kwargs)
         for name, value in fields.items():
             try:
                 current = getattr(m, name)
@@ -112,7 +113,7 @@ class RclpyBackend(Backend):
     def deserialize(self, raw: bytes, type_name: str) -> Any:
         from rclpy.serialization import deserialize_message
 
-        return deserialize_message(raw, _rclpy_class(type_name))
+        return deserialize_message(raw, rclpy_message_class(type_name))
 
 
 class RosbagsBackend(Backend):

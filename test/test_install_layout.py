@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-EXECUTABLES = ["fusion_node", "lip_rig"]
+EXECUTABLES = ["fusion_node", "lip_rig", "lip_bag_play", "lip_bag_record"]
 
 
 def _ros2_run_path(prefix_path: str, package: str, executable: str) -> Path:
@@ -58,6 +58,7 @@ def test_colcon_layout(colcon_install: Path) -> None:
     assert (share / "lip_ros" / "package.xml").is_file()
     assert (share / "lip_ros" / "params" / "smpl24_skeleton.yaml").is_file()
     assert (share / "lip_ros" / "params" / "smpl24_skeleton.urdf").is_file()
+    assert (share / "lip_ros" / "params" / "fastdds_lip.xml").is_file()
 
 
 @pytest.mark.parametrize("executable", EXECUTABLES)

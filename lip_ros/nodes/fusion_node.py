@@ -31,6 +31,7 @@ from lip_msgs_py import (
     read_header,
 )
 from lip_ros.core.sensor_monitor import SensorMonitor
+from lip_ros.middleware import use_lip_dds_profile
 
 NODE_NAME = "fusion_node"
 DEFAULT_IMUS = ("left_wrist", "right_wrist", "left_ankle", "right_ankle")
@@ -120,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
                                      epilog="ROS arguments go after --ros-args (remapping, -p name:=value, "
                                             "--params-file params/lip_ros.yaml, use_sim_time).")
     parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    use_lip_dds_profile()
     rclpy.init(args=argv)
     try:
         node = FusionNode()

@@ -21,9 +21,6 @@ from typing import Any
 
 import numpy as np
 import yaml
-from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
 from lip_msgs_py import (
     RosbagsBackend,
@@ -34,6 +31,7 @@ from lip_msgs_py import (
     pose_array_to_msg,
     pose_stamped_to_msg,
 )
+from lip_ros.bagio import RELIABLE_QOS, SENSOR_QOS, mcap_writer
 from lip_ros.core.rotations import matrix_to_quat
 from lip_ros.core.skeleton import joint_state_names, local_rotations_to_joint_angles
 from lip_ros.rig.capture import CaptureFrame, CaptureSession
@@ -47,17 +45,6 @@ LIDAR_FRAME = "os_lidar"
 GT_TOPICS = {"root": "/gt/root_pose", "joints": "/gt/joint_poses", "states": "/gt/joint_states"}
 IMU_LATENCY_NS = 20_000_000  # Bluetooth LE delivery of a DOT sample
 CLOUD_LATENCY_NS = 2_000_000  # driver time after the sweep ends
-
-_INFINITE = QosTime(sec=9223372036, nsec=854775807)  # as rosbag2 records rmw's infinite durations
-
-
-def _qos(reliability: QosReliability, depth: int) -> Qos:
-    return Qos(QosHistory.KEEP_LAST, depth, reliability, QosDurability.VOLATILE, _INFINITE, _INFINITE,
-               QosLiveliness.AUTOMATIC, _INFINITE, False)
-
-
-SENSOR_QOS = _qos(QosReliability.BEST_EFFORT, 5)  # rclpy qos_profile_sensor_data
-RELIABLE_QOS = _qos(QosReliability.RELIABLE, 10)
 
 
 def _truth_messages(backend: RosbagsBackend, names: list[str], cf: CaptureFrame) -> dict[str, Any]:
@@ -130,9 +117,7 @@ def write_capture_bag(
     stamps: list[int] = []
     truth_stamps: list[int] = []
     report = _Progress(session.num_frames, f"lip_rig {out.name}", progress)
-    writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
-    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-    with writer:
+    with mcap_writer(out, zstd=True) as writer:
         conns: dict[str, Any] = {}
 
         def connection(topic: str, msgtype: str) -> Any:

@@ -1,0 +1,219 @@
+"""lip_bag_play: publish a rosbag2 bag's messages with their recorded timing and QoS (as ``ros2 bag play`` does).
+
+  lip_bag_play BAG [--rate R] [--start S] [--loop] [--clock [HZ]] [--topics T ...] [--wait-for-subscribers]
+
+Messages keep their log-time spacing (divided by ``--rate``) and are published
+as the CDR bytes stored in the bag, never deserialised; each topic gets the
+reliability, durability and depth its publishers offered when it was recorded.
+``--clock`` also publishes ``/clock`` (rosgraph_msgs/Clock, bag time) for nodes
+with ``use_sim_time``. Progress on stderr, a summary on stdout.
+"""
+
+from __future__ import annotations
+
+import itertools
+import sys
+import threading
+import time
+from contextlib import closing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from lip_msgs_py import ns_to_sec_nanosec, rclpy_message_class
+from lip_msgs_py.stamps import NS_PER_S
+from lip_ros.bagio import BagError, TopicInfo, bag_span, bag_topics, read_raw
+from lip_ros.tools.bag_qos import common_qos, qos_to_rclpy
+from lip_ros.tools.ros_cli import ArgumentParser, Progress, ToolError, run_tool, start_ros, stop_on_signals, tool_args
+
+PROG = "lip_bag_play"
+CLOCK_TOPIC = "/clock"
+CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)  # as rclpy's and rclcpp's time sources
+DEFAULT_CLOCK_HZ = 40.0  # ros2 bag play --clock's default
+DISCOVERY_SETTLE_S = 0.5  # after the subscribers appear, for their side of discovery to finish too
+ACK_TIMEOUT = Duration(seconds=2)  # reliable topics: wait this long at the end for the last messages' acks
+LINGER_S = 0.5  # best-effort topics: stay this long at the end, as subscribers lose what an exiting writer sent last
+
+
+@dataclass(frozen=True)
+class PlayPlan:
+    """What to play: the bag, its selected topics with their message classes, the bag-time window and the options."""
+
+    bag: Path
+    topics: dict[str, TopicInfo]
+    classes: dict[str, type]
+    start_ns: int
+    end_ns: int
+    rate: float = 1.0
+    loop: bool = False
+    clock_hz: float | None = None
+    wait_for_subscribers: bool = False
+
+
+@dataclass
+class PlayStats:
+    """What was played."""
+
+    messages: int = 0
+    passes: int = 0
+    max_lag_ms: float = 0.0  # largest delay of a publication behind its scheduled time
+    per_topic: dict[str, int] = field(default_factory=dict)
+
+
+def plan_playback(bag: Path, rate: float = 1.0, start_s: float = 0.0, topics: list[str] | None = None,
+                  loop: bool = False, clock_hz: float | None = None, wait_for_subscribers: bool = False) -> PlayPlan:
+    """Check the bag and options and resolve each topic's rclpy message class; ToolError on a problem."""
+    if not rate > 0:
+        raise ToolError(f"--rate must be > 0, got {rate}")
+    if not start_s >= 0:
+        raise ToolError(f"--start must be >= 0, got {start_s}")
+    if clock_hz is not None and not clock_hz > 0:
+        raise ToolError(f"--clock rate must be > 0 Hz, got {clock_hz}")
+    if not Path(bag).exists():
+        raise ToolError(f"no bag at {bag}")
+    try:
+        available = bag_topics(bag)
+        first_ns, last_ns = bag_span(bag)
+    except BagError as exc:
+        raise ToolError(str(exc)) from None
+    unknown = sorted(set(topics or ()) - available.keys())
+    if unknown:
+        raise ToolError(f"topic(s) {', '.join(unknown)} not in {bag} (it has {', '.join(sorted(available))})")
+    selected = {t: i for t, i in available.items() if topics is None or t in topics}
+    classes = {}
+    for topic, info in selected.items():
+        try:
+            classes[topic] = rclpy_message_class(info.msgtype)
+        except KeyError:
+            raise ToolError(f"unknown message type {info.msgtype} of {topic}: its Python package is not installed "
+                            f"(leave the topic out with --topics)") from None
+    start_ns = first_ns + round(start_s * NS_PER_S)
+    if start_ns > last_ns:
+        raise ToolError(f"--start {start_s} s is past the end of the bag ({(last_ns - first_ns) / NS_PER_S:.1f} s)")
+    return PlayPlan(Path(bag), selected, classes, start_ns, last_ns, rate, loop, clock_hz, wait_for_subscribers)
+
+
+class BagPlayer:
+    """Publishes a planned playback on ``node`` until done or until ``stop`` is set."""
+
+    def __init__(self, node: Node, plan: PlayPlan, stop: threading.Event, progress: Progress | None = None) -> None:
+        self.plan, self.stop, self.progress = plan, stop, progress
+        self.publishers: dict[str, Publisher] = {
+            topic: node.create_publisher(plan.classes[topic], topic,
+                                         common_qos([qos_to_rclpy(q) for q in info.offered_qos]))
+            for topic, info in plan.topics.items()
+        }
+        self.clock_pub = node.create_publisher(Clock, CLOCK_TOPIC, CLOCK_QOS) if plan.clock_hz else None
+        self.stats = PlayStats(per_topic=dict.fromkeys(plan.topics, 0))
+
+    def run(self) -> PlayStats:
+        """Wait for subscribers if asked, play (looping if asked), let reliable topics deliver; the stats."""
+        if self.plan.wait_for_subscribers and not self._wait_for_subscribers():
+            return self.stats
+        while not self.stop.is_set():
+            self._play_pass()
+            self.stats.passes += 1
+            if not self.plan.loop:
+                break
+        for pub in self.publishers.values():
+            if pub.qos_profile.reliability == ReliabilityPolicy.RELIABLE:
+                pub.wait_for_all_acked(ACK_TIMEOUT)
+        self.stop.wait(LINGER_S)
+        return self.stats
+
+    def _wait_for_subscribers(self) -> bool:
+        while not self.stop.is_set():
+            missing = [t for t, p in self.publishers.items() if p.get_subscription_count() == 0]
+            if not missing:
+                return not self.stop.wait(DISCOVERY_SETTLE_S)
+            if self.progress:
+                self.progress(f"waiting for subscribers on {', '.join(missing)}")
+            self.stop.wait(0.05)
+        return False
+
+    def _play_pass(self) -> None:
+        """Publish the window once; message k at wall0 + (log_k - start) / rate."""
+        plan = self.plan
+        with closing(read_raw(plan.bag, plan.topics, plan.start_ns)) as messages:
+            first = next(messages, None)  # the bag is open and its first chunk read before the clock starts
+            wall0 = time.monotonic_ns()
+            next_clock = wall0
+            for m in itertools.chain([first] if first else [], messages):
+                due = wall0 + round((m.log_ns - plan.start_ns) / plan.rate)
+                while (now := time.monotonic_ns()) < due:
+                    if self.stop.is_set():
+                        return
+                    bag_ns = plan.start_ns + round((now - wall0) * plan.rate)
+                    if self.clock_pub is not None and now >= next_clock:
+                        self._publish_clock(bag_ns)
+                        next_clock += round(NS_PER_S / plan.clock_hz)
+                    if self.progress:
+                        self.progress(self._status(bag_ns))
+                    wake = min(due, next_clock) if self.clock_pub is not None else due
+                    self.stop.wait((wake - now) / NS_PER_S)
+                if self.stop.is_set():
+                    return
+                self.publishers[m.topic].publish(m.data)
+                self.stats.messages += 1
+                self.stats.per_topic[m.topic] += 1
+                self.stats.max_lag_ms = max(self.stats.max_lag_ms, (time.monotonic_ns() - due) / 1e6)
+
+    def _publish_clock(self, bag_ns: int) -> None:
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = ns_to_sec_nanosec(bag_ns)
+        self.clock_pub.publish(msg)
+
+    def _status(self, bag_ns: int) -> str:
+        total = (self.plan.end_ns - self.plan.start_ns) / NS_PER_S
+        return f"{(bag_ns - self.plan.start_ns) / NS_PER_S:6.1f} / {total:.1f} s, {self.stats.messages} messages"
+
+
+def parser() -> ArgumentParser:
+    """The command-line interface."""
+    p = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
+                       epilog="ROS arguments go after --ros-args (e.g. remapping: --ros-args -r /a:=/b).")
+    p.add_argument("bag", type=Path, help="rosbag2 bag directory (MCAP or sqlite3)")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds of the bag")
+    p.add_argument("--loop", action="store_true", help="play again and again until interrupted")
+    p.add_argument("--clock", type=float, nargs="?", const=DEFAULT_CLOCK_HZ, metavar="HZ",
+                   help=f"publish {CLOCK_TOPIC} (bag time) at HZ (default {DEFAULT_CLOCK_HZ:g}) for use_sim_time")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="play only these topics")
+    p.add_argument("--wait-for-subscribers", action="store_true",
+                   help="start only when every played topic has a subscriber")
+    return p
+
+
+def _play(argv: list[str]) -> int:
+    args = parser().parse_args(tool_args(argv))
+    plan = plan_playback(args.bag, args.rate, args.start, args.topics, args.loop, args.clock,
+                         args.wait_for_subscribers)
+    stop = stop_on_signals()
+    start_ros(argv)
+    node = rclpy.create_node("lip_bag_play")
+    progress = Progress(PROG)
+    t0 = time.monotonic()
+    try:
+        stats = BagPlayer(node, plan, stop, progress).run()
+    finally:
+        progress.done()
+        node.destroy_node()
+    topics = ", ".join(f"{t} {n}" for t, n in stats.per_topic.items())
+    print(f"{PROG}: {stats.messages} messages in {time.monotonic() - t0:.1f} s ({stats.passes} pass(es), "
+          f"max lag {stats.max_lag_ms:.1f} ms{', interrupted' if stop.is_set() else ''}): {topics}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``lip_bag_play`` (``argv`` with the program name, as ``sys.argv``)."""
+    return run_tool(PROG, _play, sys.argv if argv is None else argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
