@@ -14,7 +14,8 @@ from lip_msgs_py import msg_to_pose_array, msg_to_pose_stamped, read_header
 from lip_ros.bagio import bag_topics, read_messages
 from lip_ros.core.rotations import quat_to_matrix
 from lip_ros.core.skeleton import forward_kinematics, joint_angles_to_local_rotations, joint_state_names
-from lip_ros.rig.bag import GT_TOPICS, LABELS_FILE, LIDAR_TOPIC, TRUTH_FILE, write_capture_bag
+from lip_ros.outputs import GT_TOPICS
+from lip_ros.rig.bag import LABELS_FILE, LIDAR_TOPIC, TRUTH_FILE, write_capture_bag
 from lip_ros.rig.capture import CaptureConfig, CaptureSession
 from lip_ros.rig.cli import main as lip_rig
 from lip_ros.rig.inspect import summarize_bag
@@ -45,7 +46,7 @@ def test_bag_layout_and_topics(bag: Path) -> None:
     session = CaptureSession(CONFIG)
     n = session.num_frames
     assert topics[LIDAR_TOPIC].count == n and topics[LIDAR_TOPIC].reliability == "best_effort"
-    for t in GT_TOPICS.values():
+    for t in (GT_TOPICS.joint_states, GT_TOPICS.root_pose, GT_TOPICS.joint_poses):
         assert topics[t].count == n and topics[t].reliability == "reliable"
     for name in ("left_wrist", "right_wrist", "left_ankle", "right_ankle"):
         info = topics[f"/dot/{name}/imu"]
@@ -92,7 +93,7 @@ def _check_labelled_points(bag: Path, step: int) -> None:
     """Every ``step``-th frame: performer points on the true body surface, truth stamped when scanned."""
     session = _session_from_sidecar(bag)
     clouds = list(read_messages(bag, [LIDAR_TOPIC]))
-    truth = [msg_to_pose_array(m.msg) for m in read_messages(bag, [GT_TOPICS["joints"]])]
+    truth = [msg_to_pose_array(m.msg) for m in read_messages(bag, [GT_TOPICS.joint_poses])]
     assert len(clouds) == len(truth) == session.num_frames
     with np.load(bag / LABELS_FILE, allow_pickle=False) as z:
         offsets, pixel, actor = z["offsets"], z["pixel"], z["actor"]
@@ -134,9 +135,9 @@ def test_bundled_demo_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
 def test_truth_topics_agree(bag: Path) -> None:
     session = _session_from_sidecar(bag)
     names = joint_state_names(session.motion.skeleton)
-    roots = [msg_to_pose_stamped(m.msg) for m in read_messages(bag, [GT_TOPICS["root"]])]
-    joints = [msg_to_pose_array(m.msg) for m in read_messages(bag, [GT_TOPICS["joints"]])]
-    states = [msg_to_joint_state(m.msg, names) for m in read_messages(bag, [GT_TOPICS["states"]])]
+    roots = [msg_to_pose_stamped(m.msg) for m in read_messages(bag, [GT_TOPICS.root_pose])]
+    joints = [msg_to_pose_array(m.msg) for m in read_messages(bag, [GT_TOPICS.joint_poses])]
+    states = [msg_to_joint_state(m.msg, names) for m in read_messages(bag, [GT_TOPICS.joint_states])]
     for r, j, s in zip(roots[::20], joints[::20], states[::20]):
         assert r.stamp_ns == j.stamp_ns == s.stamp_ns
         np.testing.assert_allclose(r.position, j.positions[0])

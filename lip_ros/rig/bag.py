@@ -27,35 +27,19 @@ from lip_msgs_py import (
     array_to_cloud,
     imu_sample,
     imu_to_msg,
-    joint_state_to_msg,
-    pose_array_to_msg,
-    pose_stamped_to_msg,
 )
 from lip_ros.bagio import RELIABLE_QOS, SENSOR_QOS, mcap_writer
-from lip_ros.core.rotations import matrix_to_quat
-from lip_ros.core.skeleton import joint_state_names, local_rotations_to_joint_angles
+from lip_ros.outputs import GT_TOPICS, pose_messages
 from lip_ros.rig.capture import CaptureFrame, CaptureSession
 
-__all__ = ["write_capture_bag", "TRUTH_FILE", "LABELS_FILE", "LIDAR_TOPIC", "GT_TOPICS"]
+__all__ = ["write_capture_bag", "TRUTH_FILE", "LABELS_FILE", "LIDAR_TOPIC"]
 
 TRUTH_FILE = "rig_truth.yaml"
 LABELS_FILE = "rig_labels.npz"
 LIDAR_TOPIC = "/ouster/points"
 LIDAR_FRAME = "os_lidar"
-GT_TOPICS = {"root": "/gt/root_pose", "joints": "/gt/joint_poses", "states": "/gt/joint_states"}
 IMU_LATENCY_NS = 20_000_000  # Bluetooth LE delivery of a DOT sample
 CLOUD_LATENCY_NS = 2_000_000  # driver time after the sweep ends
-
-
-def _truth_messages(backend: RosbagsBackend, names: list[str], cf: CaptureFrame) -> dict[str, Any]:
-    gt = cf.truth
-    quats = matrix_to_quat(gt.glob_rot)
-    return {
-        GT_TOPICS["root"]: pose_stamped_to_msg(backend, gt.stamp_ns, LIDAR_FRAME, gt.root_pos, quats[0]),
-        GT_TOPICS["joints"]: pose_array_to_msg(backend, gt.stamp_ns, LIDAR_FRAME, gt.joint_pos, quats),
-        GT_TOPICS["states"]: joint_state_to_msg(backend, gt.stamp_ns, LIDAR_FRAME, names,
-                                                local_rotations_to_joint_angles(gt.local_rot)),
-    }
 
 
 def _truth_sidecar(session: CaptureSession) -> dict[str, Any]:
@@ -95,7 +79,7 @@ def write_capture_bag(
     """Simulate ``session`` and record it to the bag directory ``out`` (must not exist); message counts per topic."""
     out = Path(out)
     backend = RosbagsBackend()
-    names = joint_state_names(session.motion.skeleton)
+    skeleton = session.motion.skeleton
     streams = session.imu_streams()
     counts: dict[str, int] = {}
     pending: list[tuple[int, int, str, Any, str]] = []  # (log time, sequence, topic, message, type) min-heap
@@ -138,8 +122,10 @@ def write_capture_bag(
             stamp = cf.stamp_ns
             cloud = array_to_cloud(backend, cf.frame.points, stamp, LIDAR_FRAME)
             push(stamp + period + CLOUD_LATENCY_NS, LIDAR_TOPIC, cloud, "sensor_msgs/msg/PointCloud2")
-            for topic, msg in _truth_messages(backend, names, cf).items():
-                push(cf.truth.stamp_ns, topic, msg, msg.__msgtype__)
+            gt = cf.truth
+            for topic, (msgtype, msg) in pose_messages(backend, GT_TOPICS, skeleton, gt.stamp_ns, LIDAR_FRAME,
+                                                       gt.local_rot, gt.glob_rot, gt.joint_pos).items():
+                push(gt.stamp_ns, topic, msg, msgtype)
             flat = np.flatnonzero(cf.frame.labels.ravel() >= 0)
             labels_idx.append(flat.astype(np.int32))
             labels_actor.append(cf.frame.labels.ravel()[flat].astype(np.int8))

@@ -12,7 +12,8 @@ from lip_msgs_py import cloud_to_array, msg_to_imu, msg_to_pose_array, read_head
 from lip_ros.bagio import TopicInfo, bag_topics, read_messages
 from lip_ros.core.rotations import quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
-from lip_ros.rig.bag import GT_TOPICS, LABELS_FILE, LIDAR_TOPIC, TRUTH_FILE
+from lip_ros.outputs import GT_TOPICS
+from lip_ros.rig.bag import LABELS_FILE, LIDAR_TOPIC, TRUTH_FILE
 
 __all__ = ["BagSummary", "summarize_bag", "plot_bag"]
 
@@ -109,7 +110,7 @@ def plot_bag(path: str | Path, out_png: str | Path, frame_index: int | None = No
     path, out_png = Path(path), Path(out_png)
     skel = load_skeleton()
     clouds = list(read_messages(path, [LIDAR_TOPIC]))
-    truth = [msg_to_pose_array(m.msg).positions for m in read_messages(path, [GT_TOPICS["joints"]])]
+    truth = [msg_to_pose_array(m.msg).positions for m in read_messages(path, [GT_TOPICS.joint_poses])]
     k = len(clouds) * 2 // 3 if frame_index is None else frame_index
     pts = cloud_to_array(clouds[k].msg, ["x", "y", "z"])
     xyz = np.stack([pts["x"].ravel(), pts["y"].ravel(), pts["z"].ravel()], axis=1)

@@ -1,0 +1,65 @@
+"""The contract's pose messages of one frame, for any message backend (rclpy nodes, rosbags bags).
+
+``/lip/joint_states`` (JointState, 69 ``<joint>_rz/_ry/_rx`` angles), ``/lip/root_pose``
+(PoseStamped), ``/lip/joint_poses`` (PoseArray, 24 joints) and ``/lip/skeleton``
+(MarkerArray); the rig's ``/gt/*`` topics use the same builders.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from lip_msgs_py import (
+    Backend,
+    joint_state_to_msg,
+    pose_array_to_msg,
+    pose_stamped_to_msg,
+    skeleton_to_markers,
+)
+from lip_ros.core.rotations import matrix_to_quat
+from lip_ros.core.skeleton import Skeleton, joint_state_names, local_rotations_to_joint_angles
+
+__all__ = ["PoseTopics", "LIP_TOPICS", "GT_TOPICS", "pose_messages"]
+
+
+@dataclass(frozen=True)
+class PoseTopics:
+    """Topic names of one set of pose outputs (``skeleton`` None: no markers)."""
+
+    joint_states: str
+    root_pose: str
+    joint_poses: str
+    skeleton: str | None = None
+
+
+LIP_TOPICS = PoseTopics("/lip/joint_states", "/lip/root_pose", "/lip/joint_poses", "/lip/skeleton")
+GT_TOPICS = PoseTopics("/gt/joint_states", "/gt/root_pose", "/gt/joint_poses")
+
+
+def pose_messages(
+    backend: Backend,
+    topics: PoseTopics,
+    skeleton: Skeleton,
+    stamp_ns: int,
+    frame_id: str,
+    local_rot: np.ndarray,
+    glob_rot: np.ndarray,
+    joint_pos: np.ndarray,
+) -> dict[str, tuple[str, Any]]:
+    """topic -> (type name, message) for one pose: local rotations (24, 3, 3), global rotations and positions in L."""
+    quats = matrix_to_quat(glob_rot)
+    out = {
+        topics.joint_states: ("sensor_msgs/msg/JointState", joint_state_to_msg(
+            backend, stamp_ns, frame_id, joint_state_names(skeleton), local_rotations_to_joint_angles(local_rot))),
+        topics.root_pose: ("geometry_msgs/msg/PoseStamped",
+                           pose_stamped_to_msg(backend, stamp_ns, frame_id, joint_pos[0], quats[0])),
+        topics.joint_poses: ("geometry_msgs/msg/PoseArray",
+                             pose_array_to_msg(backend, stamp_ns, frame_id, joint_pos, quats)),
+    }
+    if topics.skeleton is not None:
+        out[topics.skeleton] = ("visualization_msgs/msg/MarkerArray",
+                                skeleton_to_markers(backend, stamp_ns, frame_id, joint_pos, skeleton.parents))
+    return out
