@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import shutil
 import signal
 import subprocess
-import sys
 import time
 from collections import defaultdict
 from dataclasses import dataclass
@@ -34,16 +32,10 @@ from lip_ros.bagio import (
     read_raw,
 )
 from lip_ros.tools.bag_qos import common_qos, qos_to_bag, qos_to_rclpy
+from helpers import DEMO_BAG, console_script
 
-DEMO_BAG = Path(__file__).resolve().parents[1] / "bags" / "demo_walk"
 START_S = 8.0  # round trip: the last 5 s of the demo bag
 TIMEOUT_S = 60
-
-
-def _exe(name: str) -> str:
-    exe = shutil.which(name, path=str(Path(sys.executable).parent))
-    assert exe, f"{name} console script not installed in this environment"
-    return exe
 
 
 def _by_topic(messages: list[RawMessage]) -> dict[str, list[RawMessage]]:
@@ -75,10 +67,10 @@ class Session:
 def _play_and_record(out: Path, play_args: list[str], record_topics: list[str],
                      stop_with: signal.Signals = signal.SIGINT) -> Session:
     """Record ``record_topics`` while ``lip_bag_play`` plays the demo bag with ``play_args``, then stop the recorder."""
-    recorder = subprocess.Popen([_exe("lip_bag_record"), str(out), "--topics", *record_topics],
+    recorder = subprocess.Popen([console_script("lip_bag_record"), str(out), "--topics", *record_topics],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        play = subprocess.run([_exe("lip_bag_play"), str(DEMO_BAG), "--wait-for-subscribers", *play_args],
+        play = subprocess.run([console_script("lip_bag_play"), str(DEMO_BAG), "--wait-for-subscribers", *play_args],
                               capture_output=True, text=True, timeout=TIMEOUT_S)
         time.sleep(0.5)  # the last messages reach the recorder
     finally:
@@ -162,7 +154,7 @@ def test_rate_two_plays_in_half_the_time(tmp_path: Path) -> None:
 
 
 def test_loop_plays_until_interrupted() -> None:
-    player = subprocess.Popen([_exe("lip_bag_play"), str(DEMO_BAG), "--loop", "--start", "12", "--topics", "/gt/root_pose"],
+    player = subprocess.Popen([console_script("lip_bag_play"), str(DEMO_BAG), "--loop", "--start", "12", "--topics", "/gt/root_pose"],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     per_pass = sum(1 for _ in read_raw(DEMO_BAG, ["/gt/root_pose"], bag_span(DEMO_BAG)[0] + 12 * 10**9))
     time.sleep(5.0)  # start-up, then about 1 s per pass
@@ -176,7 +168,7 @@ def test_loop_plays_until_interrupted() -> None:
 
 def test_recorder_stops_after_max_messages(tmp_path: Path) -> None:
     out = tmp_path / "max"
-    recorder = subprocess.Popen([_exe("lip_bag_record"), str(out), "--topics", "chatter", "--max-messages", "25"],
+    recorder = subprocess.Popen([console_script("lip_bag_record"), str(out), "--topics", "chatter", "--max-messages", "25"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rclpy.init()
     node = rclpy.create_node("bag_tools_test_talker")
@@ -203,7 +195,7 @@ def test_recorder_stops_after_max_messages(tmp_path: Path) -> None:
 
 def test_recorder_stops_after_duration_with_a_valid_bag(tmp_path: Path) -> None:
     out = tmp_path / "quiet"
-    proc = subprocess.run([_exe("lip_bag_record"), str(out), "--topics", "/nobody/publishes", "--duration", "1"],
+    proc = subprocess.run([console_script("lip_bag_record"), str(out), "--topics", "/nobody/publishes", "--duration", "1"],
                           capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 0, proc.stderr
     assert "no publisher of /nobody/publishes" in proc.stderr
@@ -238,7 +230,7 @@ BAD_CALLS = {
 @pytest.fixture(scope="module")
 def bad_call_results(unknown_type_bag: Path) -> dict[str, subprocess.CompletedProcess]:
     """Every bad call, run concurrently."""
-    procs = {name: subprocess.Popen([_exe(argv[0]), *(str(unknown_type_bag) if a == "UNKNOWN_TYPE_BAG" else a
+    procs = {name: subprocess.Popen([console_script(argv[0]), *(str(unknown_type_bag) if a == "UNKNOWN_TYPE_BAG" else a
                                                       for a in argv[1:])],
                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for name, (argv, _) in BAD_CALLS.items()}

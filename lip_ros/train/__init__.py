@@ -1,0 +1,1 @@
+"""Training of the LIP networks on synthetic rig data (``lip_train``)."""
