@@ -24,7 +24,8 @@ $(INSTALLED): setup.py setup.cfg package.xml
 	@touch $@
 
 demo: $(INSTALLED)
-	$(VENV)/bin/lip_rig inspect bags/demo_walk --plot $(OUT)/demo_walk.png
+	rm -rf $(OUT)/demo_walk $(OUT)/demo_walk_calibration.yaml
+	$(VENV)/bin/lip_process_bag bags/demo_walk $(OUT)/demo_walk --plot $(OUT)/demo_walk.png
 
 # Regenerate the bundled demo bag (command documented in bags/README.md).
 demo-bag: $(INSTALLED)

@@ -57,6 +57,7 @@ setup(
             "lip_eval = lip_ros.evaluation.cli:main",
             "lip_bag_play = lip_ros.tools.bag_play:main",
             "lip_bag_record = lip_ros.tools.bag_record:main",
+            "lip_process_bag = lip_ros.tools.process_bag:main",
         ],
     },
 )

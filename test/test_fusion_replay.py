@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
@@ -15,35 +13,24 @@ from lip_msgs_py import msg_to_diagnostics, msg_to_joint_state, msg_to_pose_stam
 from lip_ros.bagio import bag_topics, read_messages
 from lip_ros.core.skeleton import joint_state_names, load_skeleton
 
-INPUTS = ["/ouster/points", "/dot/left_wrist/imu", "/dot/right_wrist/imu", "/dot/left_ankle/imu",
-          "/dot/right_ankle/imu"]
-OUTPUTS = ["/lip/root_pose", "/lip/joint_states", "/lip/joint_poses", "/lip/skeleton", "/diagnostics"]
 
 
 @pytest.fixture(scope="module")
-def replay(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def replay(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """``lip_process_bag``: player, fusion_node and recorder in three processes; the outputs and the summary."""
     out = tmp_path_factory.mktemp("replay") / "outputs"
-    calibration = out.parent / "calibration.yaml"
-    node = subprocess.Popen([console_script("fusion_node"), "--ros-args", "-p", "use_sim_time:=true",
-                             "-p", "diagnostics_period_s:=0.5", "-p", f"calibration_file:={calibration}"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    recorder = subprocess.Popen([console_script("lip_bag_record"), str(out), "--topics", *OUTPUTS],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        play = subprocess.run([console_script("lip_bag_play"), str(DEMO_BAG), "--clock", "--wait-for-subscribers",
-                               "--topics", *INPUTS], capture_output=True, text=True, timeout=120)
-        assert play.returncode == 0, play.stderr
-        time.sleep(2.0)  # the last frames and a diagnostics period
-    finally:
-        recorder.send_signal(signal.SIGINT)
-        recorder.communicate(timeout=30)
-        node.send_signal(signal.SIGINT)
-        log = node.communicate(timeout=30)[0]
-    assert calibration.is_file(), log  # the node saved the calibration it found
-    return out
+    png = out.parent / "replay.png"
+    proc = subprocess.run([console_script("lip_process_bag"), str(DEMO_BAG), str(out), "--plot", str(png)],
+                          capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert (out.parent / "outputs_calibration.yaml").is_file()  # the node saved the calibration it found
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    return out, proc.stdout
 
 
-def test_every_frame_is_accounted_for(replay: Path) -> None:
+def test_every_frame_is_accounted_for(replay: tuple[Path, str]) -> None:
+    replay, stdout = replay
+    assert "frames in: 130" in stdout and "accuracy on" in stdout
     frames_in = bag_topics(DEMO_BAG)["/ouster/points"].count
     last = [msg_to_diagnostics(m.msg) for m in read_messages(replay, ["/diagnostics"])][-1]
     pipeline = next(s for s in last.statuses if s.name.endswith(": pipeline"))
@@ -57,7 +44,8 @@ def test_every_frame_is_accounted_for(replay: Path) -> None:
     assert pipeline.level == 0 and pipeline.message.startswith("calibrated")
 
 
-def test_outputs_are_stamped_when_scanned_and_track_the_truth(replay: Path) -> None:
+def test_outputs_are_stamped_when_scanned_and_track_the_truth(replay: tuple[Path, str]) -> None:
+    replay = replay[0]
     truth = {p.stamp_ns: p for p in map(msg_to_pose_stamped, (m.msg for m in read_messages(DEMO_BAG, ["/gt/root_pose"])))}
     poses = [msg_to_pose_stamped(m.msg) for m in read_messages(replay, ["/lip/root_pose"])]
     stamps = np.array(sorted(truth))

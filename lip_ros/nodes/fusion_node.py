@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections import Counter
+import time
+from collections import Counter, deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.clock import Clock, ClockType
@@ -62,6 +64,8 @@ class FusionNode(Node):
         self._frame_id = p["frame_id"]
         self._monitors: dict[str, tuple[str, SensorMonitor]] = {}
         self._frames: Counter[str] = Counter()  # outcome or skip reason -> frames
+        self._received_at: dict[int, float] = {}  # frame stamp -> steady time its cloud arrived
+        self._latency_ms: deque[float] = deque(maxlen=200)  # cloud arrival -> pose published
         calibration_file = Path(p["calibration_file"]).expanduser() if p["calibration_file"] else None
         try:
             model = LipModel.load(Path(p["weights"]).expanduser() if p["weights"] else None)
@@ -139,12 +143,15 @@ class FusionNode(Node):
 
     def _on_cloud(self, msg: PointCloud2) -> int:
         stamp_ns = read_header(msg)[0]
-        self._publish(self._pipeline.add_cloud(cloud_to_array(msg), stamp_ns))
+        points = cloud_to_array(msg)
+        self._received_at[stamp_ns] = time.monotonic()
+        self._publish(self._pipeline.add_cloud(points, stamp_ns))
         self._publish(self._pipeline.poll(self._now_ns()))
         return stamp_ns
 
     def _publish(self, results: list[FrameResult]) -> None:
         for r in results:
+            received = self._received_at.pop(r.frame_stamp_ns, None)
             if r.outcome == Outcome.POSE:
                 self._frames[Outcome.POSE.value] += 1
                 pose = r.pose
@@ -152,11 +159,20 @@ class FusionNode(Node):
                                                      pose.stamp_ns, self._frame_id, pose.local_rot, pose.glob_rot,
                                                      pose.joint_pos).items():
                     self._out[topic].publish(msg)
+                if received is not None:
+                    self._latency_ms.append(1e3 * (time.monotonic() - received))
             else:
                 key = r.outcome.value if r.outcome == Outcome.CALIBRATING else f"skipped: {r.reason.split(':')[0]}"
                 self._frames[key] += 1
                 self.get_logger().info(f"frame {r.frame_stamp_ns}: {r.outcome.value}: {r.reason}",
                                        throttle_duration_sec=2.0)
+
+    def _latency_values(self) -> dict[str, str]:
+        """Percentiles of the recent cloud-arrival-to-pose latencies."""
+        if not self._latency_ms:
+            return {}
+        p50, p99 = np.percentile(np.array(self._latency_ms), [50, 99])
+        return {"latency_ms_p50": f"{p50:.1f}", "latency_ms_p99": f"{p99:.1f}"}
 
     def _publish_diagnostics(self) -> None:
         now = self._now_ns()
@@ -172,7 +188,7 @@ class FusionNode(Node):
         statuses.append(diagnostic_status_to_msg(
             self._backend, int(level), f"{NODE_NAME}: pipeline", self._pipeline.calibration_status,
             values={**{"frames " + k: v for k, v in sorted(self._frames.items())},
-                    "frames pending": self._pipeline.pending}))
+                    "frames pending": self._pipeline.pending, **self._latency_values()}))
         self._diag_pub.publish(diagnostic_array_to_msg(self._backend, now, statuses))
 
 
