@@ -39,6 +39,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
         ("share/" + PACKAGE + "/params", sorted(glob("params/*.yaml") + glob("params/*.urdf") + glob("params/*.xml"))),
+        ("share/" + PACKAGE + "/params/weights", sorted(glob("params/weights/*.pt") + glob("params/weights/*.json"))),
     ],
     install_requires=["setuptools"],
     extras_require={"core": CORE, "pypi": CORE + PYPI, "test": TEST},

@@ -1,9 +1,9 @@
 """``lip_train``: simulate (and cache) rig sequences, then train the LIP networks.
 
-Example (the shipped weights, docs/training.md)::
+The shipped weights (docs/training.md)::
 
-    lip_train --train-seqs 400 --val-seqs 24 --steps 3000 --out ~/lip_runs/small \\
-        --export params/weights/lip_small
+    lip_train --train-seqs 266 --val-seqs 24 --steps 2400 --max-minutes 65 \\
+        --out /tmp/lip_run_main --export params/weights/lip_small
 """
 
 from __future__ import annotations
