@@ -5,5 +5,18 @@ from __future__ import annotations
 import os
 import random
 
+import pytest
+
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """Small networks run fastest on one thread; on a busy 2-core machine more threads are much slower."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -7,7 +7,6 @@ import json
 import math
 
 import pytest
-import torch
 
 from lip_ros.evaluation import cli as eval_cli
 from lip_ros.evaluation.captures import heldout_configs, make_heldout_set
@@ -18,12 +17,7 @@ from lip_ros.train import cli as train_cli
 SUMMARY_NUMBERS = (*POSE_ERRORS, "jitter_m_s3", "jitter_true_m_s3")
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_train_then_evaluate(tmp_path, capsys):

@@ -9,7 +9,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import torch
 
 from lip_msgs_py import RosbagsBackend, array_to_cloud, cloud_to_array, read_header
 from lip_ros.bagio import bag_topics, jazzy_typestore, mcap_writer, read_raw
@@ -29,16 +28,7 @@ WEIGHTS = params_dir() / "weights" / SHIPPED_WEIGHTS
 MAX_MPJPE_MM = 40.0
 MAX_TRANSLATION_CM = 5.0
 
-pytestmark = pytest.mark.skipif(not WEIGHTS.with_suffix(".pt").is_file(),
-                                reason=f"the shipped weights {WEIGHTS}.pt do not exist yet (lip_train --export)")
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

@@ -19,17 +19,10 @@ from lip_ros.train.rigdata import TRAIN_SEEDS, VAL_SEEDS, generate, load_sequenc
 from lip_ros.train.trainer import TrainOptions, evaluate, train
 
 SECONDS = 5.0
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 CONFIG = LipConfig.tiny()
 OPTIONS = TrainOptions(steps=30, batch=4, window=16, lr=3e-3, warmup=5, log_every=10, val_every=15)
-
-
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny networks train fastest on one thread, and a busy machine makes more threads much slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="module")
