@@ -9,18 +9,10 @@ from __future__ import annotations
 
 from collections import Counter, deque
 from dataclasses import dataclass, field
-from enum import IntEnum
 
-__all__ = ["Health", "SensorReport", "SensorMonitor"]
+from lip_msgs_py.diagnostics import DiagnosticLevel
 
-
-class Health(IntEnum):
-    """Same values as diagnostic_msgs/DiagnosticStatus levels."""
-
-    OK = 0
-    WARN = 1
-    ERROR = 2
-    STALE = 3
+__all__ = ["SensorReport", "SensorMonitor"]
 
 
 @dataclass(frozen=True)
@@ -28,7 +20,7 @@ class SensorReport:
     """One sensor's state at a point in (receive) time."""
 
     name: str
-    health: Health
+    health: DiagnosticLevel
     message: str
     rate_hz: float
     received: int
@@ -104,11 +96,11 @@ class SensorMonitor:
             problems.append(f"rejected in the last {self.window_s:g} s: "
                             + ", ".join(f"{k} x{v}" for k, v in sorted(recent.items())))
         if age is None or age > self.stale_after_s:
-            health = Health.STALE
+            health = DiagnosticLevel.STALE
             message = "no data" if age is None else f"no valid message for {age:.1f} s"
         elif problems:
-            health, message = Health.WARN, "; ".join(problems)
+            health, message = DiagnosticLevel.WARN, "; ".join(problems)
         else:
-            health, message = Health.OK, f"{rate:.1f} Hz"
+            health, message = DiagnosticLevel.OK, f"{rate:.1f} Hz"
         return SensorReport(self.name, health, message, rate, self._received, self._accepted, rejected,
                             self._out_of_order, age)

@@ -30,6 +30,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Imu, PointCloud2
 
 from lip_msgs_py import (
+    DiagnosticLevel,
     MalformedMessageError,
     RclpyBackend,
     cloud_to_array,
@@ -40,7 +41,7 @@ from lip_msgs_py import (
     rclpy_message_class,
 )
 from lip_ros.core.calibration import CalibrationError
-from lip_ros.core.sensor_monitor import Health, SensorMonitor
+from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import use_lip_dds_profile
 from lip_ros.nets.config import IMU_NAMES
 from lip_ros.nets.lip_model import LipModel
@@ -184,7 +185,7 @@ class FusionNode(Node):
             values.update({f"rejected: {k}": v for k, v in r.rejected.items()})
             statuses.append(diagnostic_status_to_msg(self._backend, int(r.health), f"{NODE_NAME}: {r.name}",
                                                      r.message, hardware_id=topic, values=values))
-        level = Health.OK if self._pipeline.calibrated else Health.WARN
+        level = DiagnosticLevel.OK if self._pipeline.calibrated else DiagnosticLevel.WARN
         statuses.append(diagnostic_status_to_msg(
             self._backend, int(level), f"{NODE_NAME}: pipeline", self._pipeline.calibration_status,
             values={**{"frames " + k: v for k, v in sorted(self._frames.items())},
