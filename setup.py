@@ -53,6 +53,9 @@ setup(
     entry_points={
         "console_scripts": [
             "fusion_node = lip_ros.nodes.fusion_node:main",
+            "segmentation_node = lip_ros.nodes.segmentation_node:main",
+            "calibration_node = lip_ros.nodes.calibration_node:main",
+            "pose_node = lip_ros.nodes.pose_node:main",
             "lip_rig = lip_ros.rig.cli:main",
             "lip_train = lip_ros.train.cli:main",
             "lip_eval = lip_ros.evaluation.cli:main",

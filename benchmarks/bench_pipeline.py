@@ -56,14 +56,14 @@ def _per_frame(model: LipModel, bag: Path) -> tuple[np.ndarray, np.ndarray, list
                 pipeline.add_imu(imu_of_topic[m.topic], msg_to_imu(m.msg))
             except MalformedMessageError:
                 pass
-            pipeline.poll(m.log_ns)
+            pipeline.poll()
             continue
         t0 = time.perf_counter()
         points = cloud_to_array(m.msg)
         t1 = time.perf_counter()
         calibrated = pipeline.calibrated
         stamp = read_header(m.msg)[0]
-        results = pipeline.add_cloud(points, stamp) + pipeline.poll(m.log_ns)
+        results = pipeline.add_cloud(points, stamp) + pipeline.poll()
         t2 = time.perf_counter()
         mine = [r for r in results if r.frame_stamp_ns == stamp]
         if calibrated and mine and mine[0].outcome == Outcome.POSE:

@@ -46,6 +46,7 @@ from lip_msgs_py.pose import (
     pose_stamped_to_msg,
 )
 from lip_msgs_py.stamps import ns_to_sec_nanosec, read_header, stamp_to_ns
+from lip_msgs_py.tf import tf_message, transform_stamped_to_msg
 
 __all__ = [
     "Backend",
@@ -78,6 +79,8 @@ __all__ = [
     "msg_to_pose_stamped",
     "pose_array_to_msg",
     "msg_to_pose_array",
+    "transform_stamped_to_msg",
+    "tf_message",
     "odometry_to_msg",
     "msg_to_odometry",
     "skeleton_to_markers",

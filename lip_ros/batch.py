@@ -22,7 +22,7 @@ def replay_bag(
     lidar_topic: str = DEFAULT_LIDAR_TOPIC,
     imu_topics: Mapping[str, str] = DEFAULT_IMU_TOPICS,
 ) -> Iterator[FrameResult]:
-    """Feed a bag to ``pipeline`` message by message (receive = log time); one result per LiDAR frame."""
+    """Feed a bag to ``pipeline`` message by message, in log-time order; one result per LiDAR frame."""
     imu_of_topic = {topic: name for name, topic in imu_topics.items()}
     for m in read_messages(bag, [lidar_topic, *imu_of_topic]):
         if m.topic == lidar_topic:
@@ -40,5 +40,5 @@ def replay_bag(
                 pipeline.reject_imu(imu_of_topic[m.topic], f"malformed: {exc}")
             else:
                 pipeline.add_imu(imu_of_topic[m.topic], sample)
-        yield from pipeline.poll(m.log_ns)
+        yield from pipeline.poll()
     yield from pipeline.flush()

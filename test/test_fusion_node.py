@@ -1,4 +1,5 @@
-"""fusion_node over real DDS: a separate process, fed by publishers in this one, reports on /diagnostics."""
+"""fusion_node over real DDS: a separate process, fed by publishers in this one, accounts for every input on
+/diagnostics."""
 
 from __future__ import annotations
 
@@ -67,26 +68,32 @@ def test_fusion_node_accounts_for_every_input(ros_node) -> None:
             while (wait := t_start + k / 60 - time.monotonic()) > 0:
                 rclpy.spin_once(ros_node, timeout_sec=wait)
         assert latest, "no /diagnostics from fusion_node: " + (proc.poll() is not None and proc.stdout.read() or "")
-        report = {s.name.split(": ")[-1]: s for s in msg_to_diagnostics(latest[-1]).statuses}
+        report = {}
+        for msg in latest:  # each node publishes its own statuses: the last of each name
+            report.update((s.name, s) for s in msg_to_diagnostics(msg).statuses)
     finally:
         proc.terminate()
         out = proc.communicate(timeout=10)[0]
 
-    assert set(report) == {"ouster", "pipeline", *IMUS}
+    assert {"segmentation_node: ouster", "segmentation_node: frames", "calibration_node: frames",
+            "pose_node: frames", *(f"calibration_node: {n}" for n in IMUS)} <= set(report)
     # the tiny test clouds hold no performer: each accepted cloud is accounted for as a skipped frame
-    pipeline = report["pipeline"]
-    assert pipeline.level == 1  # not calibrated
-    frames = {k: int(v) for k, v in pipeline.values.items() if k.startswith("frames ") and k != "frames pending"}
-    assert int(pipeline.values["frames pending"]) == 0
+    frames = {k: int(v) for name, s in report.items() if name.endswith(": frames")
+              for k, v in s.values.items() if k.startswith("frames ")}
+    assert report["calibration_node: frames"].level == 1  # not calibrated
+    assert int(report["calibration_node: frames"].values["pending"]) == 0
     assert frames and all(k.startswith("frames skipped") for k in frames)
-    assert sum(frames.values()) == int(report["ouster"].values["accepted"]) > 10
+    lidar = report["segmentation_node: ouster"]
+    assert sum(frames.values()) == int(lidar.values["received"]) > 10  # the malformed ones included
+    assert frames["frames skipped: malformed cloud"] >= 1
     for name in ("left_wrist", "right_wrist", "left_ankle"):
-        assert report[name].level == 0, report[name]
-        assert 40 < float(report[name].values["rate_hz"]) < 75
-    ankle = report["right_ankle"]
+        status = report[f"calibration_node: {name}"]
+        assert status.level == 0, status
+        assert 40 < float(status.values["rate_hz"]) < 75
+    ankle = report["calibration_node: right_ankle"]
     assert ankle.level == 1 and "rejected" in ankle.message
     rejected = int(next(v for k, v in ankle.values.items() if k.startswith("rejected")))
     assert rejected > 50 and int(ankle.values["accepted"]) > 50
-    assert report["ouster"].hardware_id == "/ouster/points"
-    assert int(next(v for k, v in report["ouster"].values.items() if k.startswith("rejected"))) >= 1
+    assert lidar.hardware_id == "/ouster/points"
+    assert int(next(v for k, v in lidar.values.items() if k.startswith("rejected"))) >= 1
     assert "message skipped" in out  # the log says why

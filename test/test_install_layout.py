@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-EXECUTABLES = ["fusion_node", "lip_rig", "lip_bag_play", "lip_bag_record", "lip_process_bag"]
+EXECUTABLES = ["fusion_node", "segmentation_node", "calibration_node", "pose_node", "lip_rig", "lip_bag_play", "lip_bag_record", "lip_process_bag"]
 
 
 def _ros2_run_path(prefix_path: str, package: str, executable: str) -> Path:

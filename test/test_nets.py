@@ -10,7 +10,7 @@ from scipy.spatial.distance import cdist
 from lip_ros.core.rotations import rot_z
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_kinematics import SkeletonTensors, forward_kinematics, matrix_to_six_d
-from lip_ros.nets.config import LipConfig
+from lip_ros.nets.config import VARIANTS, LipConfig
 from lip_ros.nets.lip_model import SHIPPED_WEIGHTS, LipModel, LipOutput
 from lip_ros.nets.losses import LOSS_NAMES, LossTargets, lip_losses
 from lip_ros.nets.models import LipNet
@@ -121,6 +121,31 @@ def test_streaming_equals_batch():
     np.testing.assert_allclose(again.joints, whole.joints[0], atol=1e-5)
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_ablation_variants_stream_and_drop_what_they_ablate(variant):
+    torch.manual_seed(3)
+    net = LipNet(LipConfig.tiny().with_(variant=variant))
+    b, t, n = 1, 4, LipConfig.tiny().num_points
+    points, frame, imu = torch.randn(b, t, n, 3), torch.ones(b, t, 2), torch.randn(b, t, 48)
+    with torch.no_grad():
+        out, _ = net(points, frame, imu)
+        first, state = net(points[:, :2], frame[:, :2], imu[:, :2])
+        rest, _ = net(points[:, 2:], frame[:, 2:], imu[:, 2:], state)
+        no_imu, _ = net(points, frame, torch.zeros_like(imu))
+        no_points, _ = net(torch.zeros_like(points), torch.zeros_like(frame), imu)
+    torch.testing.assert_close(torch.cat([first["rot6d"], rest["rot6d"]], 1), out["rot6d"])
+    assert ("joints_prior" in out) == (variant != "no_prior")
+    assert ("fine_joints" in out) == (variant != "no_joint_map")
+    assert torch.equal(out["rot6d"], no_imu["rot6d"]) == (variant == "lidar_only")
+    assert torch.equal(out["rot6d"], no_points["rot6d"]) == (variant == "imu_only")
+    assert out["offset"].shape == (b, t, 3)
+
+
+def test_unknown_variant_is_an_error():
+    with pytest.raises(ValueError, match="variant"):
+        LipConfig(variant="lidar+12imus")
+
+
 def test_bidirectional_model_cannot_stream():
     model = LipModel(LipNet(LipConfig.tiny().with_(bidirectional=True)))
     frames = _random_frames(np.random.default_rng(3), 4)
@@ -151,14 +176,16 @@ def test_losses_vanish_at_the_target_only():
     target = LossTargets(joints=joints, local_rot=local_rot.float(), offset=torch.randn(2, 3, 3),
                          present=torch.tensor([[1.0, 0.0, 1.0]] * 2), bone_offsets=skel.offsets.expand(2, 24, 3))
     six = matrix_to_six_d(target["local_rot"])
-    perfect = {"joints_prior": joints, "root6d_prior": six[..., 0, :], "joints": joints, "rot6d": six,
-               "offset": target["offset"].clone()}
+    perfect = {"joints_prior": joints, "root6d_prior": six[..., 0, :], "fine_joints": joints, "joints": joints,
+               "rot6d": six, "offset": target["offset"].clone()}
     total, terms = lip_losses(perfect, target, skel, LipConfig().lambdas)
     assert set(terms) == set(LOSS_NAMES) and float(total) < 1e-9
     perfect["offset"][:, 1] += 10.0  # frames without a performer carry no translation loss
     assert lip_losses(perfect, target, skel, LipConfig().lambdas)[1]["trans"] < 1e-9
-    perfect["joints"] = joints + 0.1
+    perfect["fine_joints"] = joints + 0.1
     assert lip_losses(perfect, target, skel, LipConfig().lambdas)[1]["fine_joints"] == pytest.approx(72 * 0.01)
+    del perfect["joints_prior"], perfect["root6d_prior"], perfect["fine_joints"]  # an ablation without them
+    assert set(lip_losses(perfect, target, skel, LipConfig().lambdas)[1]) == {"ik", "fk", "trans"}
 
 
 def test_config_roundtrip(tmp_path):

@@ -6,10 +6,18 @@ import json
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
-__all__ = ["IMU_NAMES", "LipConfig"]
+__all__ = ["IMU_NAMES", "VARIANTS", "LipConfig"]
 
 #: The four DOTs in network input order (the paper's lw, rw, la, ra).
 IMU_NAMES = ("left_wrist", "right_wrist", "left_ankle", "right_ankle")
+
+#: The method and the paper's ablations (its tables 3, 6 and 7), each trained on its own:
+#: ``full`` the method; ``lidar_only`` / ``imu_only`` the same networks with the other modality's input
+#: zeroed; ``no_prior`` (the paper's "w/o RE") the prior encoder's temporal features go straight into the
+#: second stage with the IMUs, no prior joints or root orientation; ``no_joint_map`` ("w/o JE") the
+#: body-pose estimator works on the prior and the IMUs, no refined joint map; ``trans_no_pose`` ("w/o PG")
+#: the translation corrector sees its point features only.
+VARIANTS = ("full", "lidar_only", "imu_only", "no_prior", "no_joint_map", "trans_no_pose")
 
 
 @dataclass(frozen=True)
@@ -24,6 +32,7 @@ class LipConfig:
     ``bidirectional`` = the paper's offline bi-GRUs (no streaming).
     ``lambdas`` weigh the joint-prior, orientation-prior, refined-joint,
     rotation and forward-kinematics losses (equations 3 and 7).
+    ``variant`` is the method (``full``) or one of its ablations (:data:`VARIANTS`).
     """
 
     num_points: int = 256
@@ -36,6 +45,11 @@ class LipConfig:
     trans_hidden: int = 64
     bidirectional: bool = False
     lambdas: tuple[float, float, float, float, float] = (1.0, 1.0, 0.2, 0.7, 0.7)
+    variant: str = "full"
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise ValueError(f"unknown LipConfig variant {self.variant!r}; one of {', '.join(VARIANTS)}")
 
     @classmethod
     def paper(cls) -> LipConfig:

@@ -37,20 +37,26 @@ def _sq(x: torch.Tensor, dims: int) -> torch.Tensor:
 def lip_losses(
     out: dict[str, torch.Tensor], target: LossTargets, skel: SkeletonTensors, lambdas: tuple[float, ...]
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """Weighted total loss and each term's value (equations 3, 7, 9; translation only where the performer was seen)."""
+    """Weighted total loss and each term's value (equations 3, 7, 9; translation only where the performer was seen).
+
+    The prior and refined-joint terms apply to the outputs the network has
+    (an ablation without the prior or the joint map lacks them).
+    """
     rot6d_gt = matrix_to_six_d(target["local_rot"])
     _, fk = forward_kinematics(skel, six_d_to_matrix(out["rot6d"]), offsets=target["bone_offsets"][:, None])
     present = target["present"].to(out["offset"].dtype)
     terms = {
-        "joint_prior": _sq(out["joints_prior"] - target["joints"], 2).mean(),
-        "ori_prior": _sq(out["root6d_prior"] - rot6d_gt[..., 0, :], 1).mean(),
-        "fine_joints": _sq(out["joints"] - target["joints"], 2).mean(),
         "ik": _sq(out["rot6d"] - rot6d_gt, 2).mean(),
         "fk": _sq(fk - target["joints"], 2).mean(),
         "trans": (_sq(out["offset"] - target["offset"], 1) * present).sum() / present.sum().clamp(min=1.0),
     }
-    weights = (*lambdas, 1.0)
-    total = sum(w * terms[n] for w, n in zip(weights, LOSS_NAMES))
+    if "joints_prior" in out:
+        terms["joint_prior"] = _sq(out["joints_prior"] - target["joints"], 2).mean()
+        terms["ori_prior"] = _sq(out["root6d_prior"] - rot6d_gt[..., 0, :], 1).mean()
+    if "fine_joints" in out:
+        terms["fine_joints"] = _sq(out["fine_joints"] - target["joints"], 2).mean()
+    weights = dict(zip(LOSS_NAMES, (*lambdas, 1.0)))
+    total = sum(weights[n] * v for n, v in terms.items())
     return total, {n: float(v.detach()) for n, v in terms.items()}
 
 

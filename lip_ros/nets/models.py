@@ -114,42 +114,67 @@ class LipNet(nn.Module):
         c = config
         self.config = c
         self.prior_encoder = PointGruEncoder(c.point_widths, c.prior_hidden, c.prior_layers, c.bidirectional)
-        self.prior_decoder = _mlp([c.prior_hidden, c.decoder_hidden, c.decoder_hidden, _JOINT_FEATURES + 6],
-                                  last_relu=False)
-        x3 = IMU_FEATURES + _JOINT_FEATURES + 6
-        self.joint_map = Estimator(x3, _JOINT_FEATURES, c.estimator_hidden, c.bidirectional)
-        self.body_pose = Estimator(x3 + _JOINT_FEATURES, _ROT_FEATURES, c.estimator_hidden, c.bidirectional)
+        if c.variant == "no_prior":  # the paper's "w/o RE": encoder features straight into the second stage
+            self.prior_decoder = None
+            x3 = IMU_FEATURES + c.prior_hidden
+        else:
+            self.prior_decoder = _mlp([c.prior_hidden, c.decoder_hidden, c.decoder_hidden, _JOINT_FEATURES + 6],
+                                      last_relu=False)
+            x3 = IMU_FEATURES + _JOINT_FEATURES + 6
+        if c.variant == "no_joint_map":  # "w/o JE": rotations from the prior and the IMUs, no refined joints
+            self.joint_map = None
+            self.body_pose = Estimator(x3, _ROT_FEATURES, c.estimator_hidden, c.bidirectional)
+        else:
+            self.joint_map = Estimator(x3, _JOINT_FEATURES, c.estimator_hidden, c.bidirectional)
+            self.body_pose = Estimator(x3 + _JOINT_FEATURES, _ROT_FEATURES, c.estimator_hidden, c.bidirectional)
         self.trans_encoder = PointGruEncoder(c.trans_point_widths, c.trans_hidden, 1, c.bidirectional)
-        self.trans_head = _mlp([c.trans_hidden + _ROT_FEATURES + _JOINT_FEATURES, c.trans_hidden, 3],
-                               last_relu=False)
+        guide = 0 if c.variant == "trans_no_pose" else _ROT_FEATURES + _JOINT_FEATURES
+        self.trans_head = _mlp([c.trans_hidden + guide, c.trans_hidden, 3], last_relu=False)
 
     def forward(
         self, points: torch.Tensor, frame: torch.Tensor, imu: torch.Tensor, state: State | None = None
     ) -> tuple[dict[str, torch.Tensor], State]:
         """Outputs for inputs (B, T, N, 3), (B, T, FRAME_FEATURES), (B, T, IMU_FEATURES), all in V.
 
-        Returns ``joints_prior`` (B, T, 24, 3), ``root6d_prior`` (B, T, 6),
-        ``joints`` (B, T, 24, 3) refined, root-relative, ``rot6d`` (B, T, 24, 6)
-        local rotations, ``offset`` (B, T, 3) root minus point mean, and the
-        final recurrent state (pass it back in to continue the sequence).
+        Returns ``joints`` (B, T, 24, 3) root-relative (the refined joint map,
+        or what the variant has instead), ``rot6d`` (B, T, 24, 6) local
+        rotations, ``offset`` (B, T, 3) root minus point mean; the supervised
+        intermediate outputs the variant has: ``joints_prior`` (B, T, 24, 3),
+        ``root6d_prior`` (B, T, 6), ``fine_joints`` (the refined joint map);
+        and the final recurrent state (pass it back in to continue the sequence).
         """
         if state is not None and self.config.bidirectional:
             raise ValueError("a bidirectional LipNet cannot continue a sequence (no streaming state)")
         state = state or [None] * self.NUM_STATES
+        variant = self.config.variant
         lead = points.shape[:2]
-        h, s0 = self.prior_encoder(points, frame, state[0])
-        prior = self.prior_decoder(h)
-        x3 = torch.cat([imu, prior], dim=-1)
-        delta, s_jm = self.joint_map(x3, state[1:4])
-        joints = prior[..., :_JOINT_FEATURES] + delta
-        rot6d, s_bp = self.body_pose(torch.cat([x3, joints], dim=-1), state[4:7])
+        if variant == "lidar_only":
+            imu = torch.zeros_like(imu)
+        pose_points, pose_frame = points, frame
+        if variant == "imu_only":  # the pose module sees no points (the translation module still does)
+            pose_points, pose_frame = torch.zeros_like(points), torch.zeros_like(frame)
+        h, s0 = self.prior_encoder(pose_points, pose_frame, state[0])
+        out: dict[str, torch.Tensor] = {}
+        if self.prior_decoder is None:
+            x3 = torch.cat([imu, h], dim=-1)
+            base = 0.0
+        else:
+            prior = self.prior_decoder(h)
+            x3 = torch.cat([imu, prior], dim=-1)
+            base = prior[..., :_JOINT_FEATURES]
+            out["joints_prior"] = base.reshape(*lead, NUM_JOINTS, 3)
+            out["root6d_prior"] = prior[..., _JOINT_FEATURES:]
+        if self.joint_map is None:
+            joints, s_jm = base, [None] * 3
+            rot6d, s_bp = self.body_pose(x3, state[4:7])
+        else:
+            delta, s_jm = self.joint_map(x3, state[1:4])
+            joints = base + delta
+            out["fine_joints"] = joints.reshape(*lead, NUM_JOINTS, 3)
+            rot6d, s_bp = self.body_pose(torch.cat([x3, joints], dim=-1), state[4:7])
         ht, s_t = self.trans_encoder(points, frame, state[7])
-        offset = self.trans_head(torch.cat([ht, rot6d.detach(), joints.detach()], dim=-1))
-        out = {
-            "joints_prior": prior[..., :_JOINT_FEATURES].reshape(*lead, NUM_JOINTS, 3),
-            "root6d_prior": prior[..., _JOINT_FEATURES:],
-            "joints": joints.reshape(*lead, NUM_JOINTS, 3),
-            "rot6d": rot6d.reshape(*lead, NUM_JOINTS, 6),
-            "offset": offset,
-        }
+        guide = [] if variant == "trans_no_pose" else [rot6d.detach(), joints.detach()]
+        out["offset"] = self.trans_head(torch.cat([ht, *guide], dim=-1))
+        out["joints"] = joints.reshape(*lead, NUM_JOINTS, 3)
+        out["rot6d"] = rot6d.reshape(*lead, NUM_JOINTS, 6)
         return out, [s0, *s_jm, *s_bp, s_t]

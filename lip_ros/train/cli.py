@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lip_ros.nets.config import LipConfig
+from lip_ros.nets.config import VARIANTS, LipConfig
 from lip_ros.nets.lip_model import LipModel
 from lip_ros.train.dataset import blank_frames, prepare
 from lip_ros.train.rigdata import TRAIN_SEEDS, VAL_SEEDS, ensure_cached, load_sequence, spec_for_seed
@@ -36,6 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", choices=sorted(_CONFIGS), default="small", help="network sizes")
     p.add_argument("--config-json", type=Path, help="a LipConfig JSON (overrides --config)")
     p.add_argument("--bidirectional", action="store_true", help="offline bi-GRUs (the paper's; cannot stream)")
+    p.add_argument("--variant", choices=VARIANTS, default="full",
+                   help="the method or one of its ablations (docs/evaluation.md)")
     p.add_argument("--train-seqs", type=int, default=400, help="training sequences (seeds 0..n-1)")
     p.add_argument("--val-seqs", type=int, default=24, help="validation sequences (seeds 500000..)")
     p.add_argument("--seconds", type=float, default=30.0, help="length of each sequence")
@@ -57,6 +59,8 @@ def main(argv: list[str] | None = None) -> int:
     config = LipConfig.load(args.config_json) if args.config_json else _CONFIGS[args.config]()
     if args.bidirectional:
         config = config.with_(bidirectional=True)
+    if args.variant != "full":
+        config = config.with_(variant=args.variant)
     if args.train_seqs < 1 or args.val_seqs < 1:
         print("lip_train: need at least one training and one validation sequence", file=sys.stderr)
         return 2

@@ -1,0 +1,319 @@
+"""What every LIP node shares: validated parameters, monitored inputs, frame accounting, diagnostics, ``main``.
+
+Parameters: each node lists its parameters (:class:`Param`: description and
+check); their defaults come from the shipped ``params/lip.yaml``
+(``ros__parameters`` of the node's section and of ``/**``), the single source
+of defaults. ``--ros-args --params-file FILE`` and ``-p name:=value`` override
+them; every value is checked at start-up, and a bad or unknown one stops the
+executable with one clear line and exit status 2.
+
+Diagnostics (``/diagnostics``, every ``diagnostics_period_s`` of steady time):
+one status per monitored input (rate, age, rejections) and one
+``<node>: frames`` status. Its values named ``frames <what>`` count LiDAR
+frames that ended in this node (skipped with the reason, calibrating, pose),
+so that summed over the graph's nodes every input frame is counted exactly
+once; other values (pending, latency) are named otherwise.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from collections import Counter, deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidParameterTypeException, ParameterException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+from lip_msgs_py import (
+    DiagnosticLevel,
+    MalformedMessageError,
+    RclpyBackend,
+    diagnostic_array_to_msg,
+    diagnostic_status_to_msg,
+)
+from lip_ros.core.sensor_monitor import SensorMonitor
+from lip_ros.middleware import use_lip_dds_profile
+from lip_ros.params import params_path
+
+__all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "LipNode", "LatencyWindow", "RELIABLE",
+           "node_defaults", "check_params_files", "run_nodes", "PARAMS_FILE", "FrameArrivals"]
+
+#: The shipped parameter file: every node's parameters and their defaults.
+PARAMS_FILE = "lip.yaml"
+
+#: QoS of the graph's outputs and of the topics between its nodes.
+RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class ParameterError(ValueError):
+    """A parameter value (or parameter file) a node cannot run with."""
+
+
+class TopicTypeError(RuntimeError):
+    """An input topic is published with another message type than the node reads."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """A node parameter: what it means and, optionally, what makes a value wrong (a message, or None if fine)."""
+
+    description: str
+    check: Callable[[Any], str | None] | None = None
+
+
+def positive(value: Any) -> str | None:
+    """Check: a number > 0."""
+    return None if value > 0 else f"must be > 0, got {value}"
+
+
+def node_defaults(node_name: str) -> dict[str, Any]:
+    """The shipped defaults of a node: ``/**`` then the node's own section of ``params/lip.yaml``."""
+    doc = yaml.safe_load(params_path(PARAMS_FILE).read_text(encoding="utf-8")) or {}
+    out: dict[str, Any] = {}
+    for section in ("/**", node_name):
+        out.update((doc.get(section) or {}).get("ros__parameters") or {})
+    return out
+
+
+def _params_files(argv: Sequence[str]) -> list[Path]:
+    files, ros = [], False
+    for i, arg in enumerate(argv):
+        if arg == "--ros-args":
+            ros = True
+        elif arg == "--" and ros:
+            ros = False
+        elif ros and arg == "--params-file" and i + 1 < len(argv):
+            files.append(Path(argv[i + 1]))
+    return files
+
+
+def check_params_files(argv: Sequence[str], known: dict[str, set[str]]) -> None:
+    """Raise :class:`ParameterError` if a ``--params-file`` of ``argv`` is unreadable or sets a parameter that
+    no node of this process has (``known``: node name -> parameter names); other nodes' sections are left alone."""
+    every = set().union(*known.values()) | {"use_sim_time"}
+    for path in _params_files(argv):
+        try:
+            doc = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+        except (OSError, yaml.YAMLError) as exc:
+            raise ParameterError(f"cannot read parameter file {path}: {exc}") from exc
+        for section, body in doc.items():
+            names = every if section in ("/**", "**") else known.get(str(section).lstrip("/"))
+            if names is None:
+                continue
+            unknown = set((body or {}).get("ros__parameters") or {}) - names - {"use_sim_time"}
+            if unknown:
+                raise ParameterError(f"{path}: unknown parameter(s) {', '.join(sorted(unknown))} for {section} "
+                                     f"(known: {', '.join(sorted(names))})")
+
+
+class LatencyWindow:
+    """The most recent latencies (ms) and their percentiles."""
+
+    def __init__(self, size: int = 1000) -> None:
+        self._ms: deque[float] = deque(maxlen=size)
+        self.count = 0  # latencies added in all
+
+    def add(self, seconds: float) -> None:
+        """One latency, in seconds."""
+        self._ms.append(1e3 * seconds)
+        self.count += 1
+
+    def values(self, prefix: str) -> dict[str, str]:
+        """Diagnostic values ``<prefix>_p50/_p90/_p99/_max`` (ms) over the window; empty without data."""
+        if not self._ms:
+            return {}
+        ms = np.array(self._ms)
+        p50, p90, p99 = np.percentile(ms, [50, 90, 99])
+        return {f"{prefix}_p50": f"{p50:.1f}", f"{prefix}_p90": f"{p90:.1f}", f"{prefix}_p99": f"{p99:.1f}",
+                f"{prefix}_max": f"{ms.max():.1f}"}
+
+
+class FrameArrivals:
+    """When each LiDAR frame arrived (steady seconds, by pose stamp), shared by the nodes of one process so that
+    the last one can measure the graph's latency from cloud receipt to pose publication."""
+
+    def __init__(self, size: int = 200) -> None:
+        self._t: dict[int, float] = {}
+        self._size = size
+        self._lock = threading.Lock()
+
+    def mark(self, pose_stamp_ns: int, seconds: float) -> None:
+        """Frame ``pose_stamp_ns`` arrived at ``seconds``."""
+        with self._lock:
+            self._t[pose_stamp_ns] = seconds
+            while len(self._t) > self._size:
+                del self._t[next(iter(self._t))]
+
+    def pop(self, pose_stamp_ns: int) -> float | None:
+        """When that frame arrived (None if unknown, e.g. segmented in another process)."""
+        with self._lock:
+            return self._t.pop(pose_stamp_ns, None)
+
+
+class LipNode(Node):
+    """A node of the LIP graph: subclasses set ``NAME`` and ``PARAMS`` and override :meth:`frame_status`."""
+
+    NAME = ""
+
+    #: Parameters every node has.
+    COMMON_PARAMS = {
+        "diagnostics_period_s": Param("period of /diagnostics (steady time)", positive),
+        "stale_after_s": Param("an input with no message for this long is reported stale", positive),
+        "lidar_rate_hz": Param("expected LiDAR frame rate", positive),
+    }
+    PARAMS: dict[str, Param] = {}
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        self.params = self._declare_parameters()
+        self.backend = RclpyBackend()
+        #: All of this node's callbacks: its stage objects are not thread-safe; nodes run in parallel.
+        self.group = MutuallyExclusiveCallbackGroup()
+        self.frames: Counter[str] = Counter()  # "frames <what>" of the diagnostics, without the prefix
+        self._inputs: dict[str, tuple[str, type, SensorMonitor]] = {}
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)  # also ticks while a bag's /clock is paused or over
+        self.create_timer(self.params["diagnostics_period_s"], self._on_diagnostics_timer, self.group,
+                          clock=self.steady)
+
+    @classmethod
+    def parameter_names(cls) -> set[str]:
+        """Names of every parameter of this node."""
+        return set(cls.COMMON_PARAMS) | set(cls.PARAMS)
+
+    def _declare_parameters(self) -> dict[str, Any]:
+        defaults = node_defaults(self.NAME)
+        specs = {**self.COMMON_PARAMS, **self.PARAMS}
+        missing = set(specs) - set(defaults)
+        if missing:
+            raise ParameterError(f"{params_path(PARAMS_FILE)} has no default for {', '.join(sorted(missing))}")
+        values, problems = {}, []
+        for name, spec in specs.items():
+            try:
+                value = self.declare_parameter(name, defaults[name], ParameterDescriptor(
+                    description=spec.description)).value
+            except (InvalidParameterTypeException, ParameterException) as exc:
+                problems.append(f"{name}: {exc}")
+                continue
+            problem = spec.check(value) if spec.check else None
+            if problem:
+                problems.append(f"{name} {problem}")
+            values[name] = value
+        if problems:
+            raise ParameterError("; ".join(problems))
+        return values
+
+    def now_ns(self) -> int:
+        """The node's clock (ROS time, or /clock with use_sim_time)."""
+        return self.get_clock().now().nanoseconds
+
+    def add_input(self, name: str, topic: str, msg_type: type, rate_hz: float, handle: Callable[[Any], int],
+                  qos: QoSProfile = qos_profile_sensor_data) -> None:
+        """Subscribe ``handle`` (returns the message stamp, raises MalformedMessageError to reject) with a
+        monitor of the input's rate, age and rejections on /diagnostics."""
+        monitor = SensorMonitor(name, expected_rate_hz=rate_hz, stale_after_s=self.params["stale_after_s"])
+        self._inputs[name] = (topic, msg_type, monitor)
+
+        def callback(msg: Any) -> None:
+            now = self.now_ns() * 1e-9
+            try:
+                monitor.accept(now, handle(msg))
+            except MalformedMessageError as exc:
+                monitor.reject(now, str(exc).split(":")[0][:60])
+                self.get_logger().warning(f"{name} ({topic}): message skipped: {exc}", throttle_duration_sec=5.0)
+
+        self.create_subscription(msg_type, topic, callback, qos, callback_group=self.group)
+
+    def count_frame(self, what: str, detail: str = "") -> None:
+        """Account for a LiDAR frame that ends here (``frames <what>`` on /diagnostics); log why if skipped."""
+        self.frames[what] += 1
+        if detail:
+            self.get_logger().info(f"frame {what}: {detail}", throttle_duration_sec=2.0)
+
+    def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
+        """Level, message and extra values of the ``<node>: frames`` status."""
+        return DiagnosticLevel.OK, "", {}
+
+    def _check_topic_types(self) -> None:
+        """Raise :class:`TopicTypeError` if an input topic has a publisher of another type than ours."""
+        for name, (topic, msg_type, _) in self._inputs.items():
+            want = f"{msg_type.__module__.split('.')[0]}/msg/{msg_type.__name__}"
+            other = {i.topic_type for i in self.get_publishers_info_by_topic(self.resolve_topic_name(topic))} - {want}
+            if other:
+                raise TopicTypeError(f"{name} input {self.resolve_topic_name(topic)} is published as "
+                                     f"{', '.join(sorted(other))}; this node reads {want} (remap the input to the "
+                                     f"right topic)")
+
+    def _on_diagnostics_timer(self) -> None:
+        self._check_topic_types()
+        now = self.now_ns()
+        statuses = []
+        for topic, _, monitor in self._inputs.values():
+            r = monitor.report(now * 1e-9)
+            values = {"rate_hz": f"{r.rate_hz:.2f}", "received": r.received, "accepted": r.accepted,
+                      "out_of_order": r.out_of_order, "age_s": "none" if r.age_s is None else f"{r.age_s:.3f}"}
+            values.update({f"rejected: {k}": v for k, v in r.rejected.items()})
+            statuses.append(diagnostic_status_to_msg(self.backend, int(r.health), f"{self.get_name()}: {r.name}",
+                                                     r.message, hardware_id=topic, values=values))
+        level, message, extra = self.frame_status()
+        values = {**{f"frames {k}": v for k, v in sorted(self.frames.items())}, **extra}
+        statuses.append(diagnostic_status_to_msg(self.backend, int(level), f"{self.get_name()}: frames", message,
+                                                 values=values))
+        self._diag_pub.publish(diagnostic_array_to_msg(self.backend, now, statuses))
+
+
+def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], LipNode]],
+              classes: Sequence[type[LipNode]], argv: list[str] | None = None) -> int:
+    """``main`` of an executable: parse, check parameter files, create the nodes, spin them on a multi-threaded
+    executor; parameter and topic type errors end it with one line on stderr and exit status 2."""
+    import argparse
+
+    argv = sys.argv if argv is None else argv
+    parser = argparse.ArgumentParser(prog=prog, description=description,
+                                     epilog="ROS arguments go after --ros-args (remapping, -p name:=value, "
+                                            "--params-file FILE, -p use_sim_time:=true).")
+    parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    use_lip_dds_profile()
+    rclpy.init(args=argv)
+    nodes: list[LipNode] = []
+    try:
+        check_params_files(argv, {c.NAME: c.parameter_names() for c in classes})
+        for make in factories:
+            nodes.append(make())
+    except ParameterError as exc:
+        print(f"{prog}: parameter error: {exc}", file=sys.stderr)
+        _shutdown(nodes)
+        return 2
+    executor = MultiThreadedExecutor(num_threads=max(2, len(nodes)))
+    for node in nodes:
+        executor.add_node(node)
+    try:
+        executor.spin()
+    except TopicTypeError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        _shutdown(nodes)
+    return 0
+
+
+def _shutdown(nodes: Sequence[Node]) -> None:
+    for node in nodes:
+        node.destroy_node()
+    rclpy.try_shutdown()
