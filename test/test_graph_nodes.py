@@ -11,16 +11,20 @@ import numpy as np
 import pytest
 import rclpy
 import yaml
+from geometry_msgs.msg import PoseStamped
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from helpers import DEMO_BAG, console_script
+from lip_msgs_py import msg_to_pose_stamped
+from lip_ros.bagio import read_messages
 from lip_ros.batch import replay_bag
 from lip_ros.nets.lip_model import LipModel
 from lip_ros.pipeline import LipPipeline, PipelineConfig
 
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
@@ -120,3 +124,44 @@ def test_an_input_of_another_type_stops_the_node_with_exit_2(ros_node):
             proc.kill()
     assert proc.returncode == 2, out
     assert "/test/wrong_type is published as sensor_msgs/msg/Imu" in out and "Traceback" not in out, out
+
+
+def test_a_restarted_graph_resumes_mid_capture(ros_node, tmp_path):
+    """Kill fusion_node mid-capture and start it again: it resumes with the saved calibration and performer
+    position (the A/T-pose is only at the start of the bag, so without them no pose could follow)."""
+    files = {"calibration_file": tmp_path / "calibration.yaml", "performer_file": tmp_path / "performer.yaml"}
+    args = ["-p", "use_sim_time:=true", *(a for k, v in files.items() for a in ("-p", f"{k}:={v}"))]
+    poses: list[tuple[object, int]] = []
+    run = [0]
+    ros_node.create_subscription(PoseStamped, "/lip/root_pose",
+                                 lambda m: poses.append((msg_to_pose_stamped(m), run[0])), RELIABLE)
+    graph = _start("fusion_node", *args)
+    inputs = ["/ouster/points", *(f"/dot/{n}/imu" for n in ("left_wrist", "right_wrist", "left_ankle", "right_ankle"))]
+    player = subprocess.Popen([console_script("lip_bag_play"), str(DEMO_BAG), "--clock", "--rate", "0.5",
+                               "--wait-for-subscribers", "--topics", *inputs],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _spin_until(ros_node, lambda: len(poses) >= 10 and all(f.is_file() for f in files.values()), graph, 90.0)
+        graph.kill()  # a crash, not a clean shutdown
+        graph.communicate(timeout=10)
+        run[0] = 1
+        graph = _start("fusion_node", *args)
+        _spin_until(ros_node, lambda: player.poll() is not None, graph, 90.0)
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            rclpy.spin_once(ros_node, timeout_sec=0.1)
+    finally:
+        graph.terminate()
+        out = graph.communicate(timeout=10)[0]
+        if player.poll() is None:
+            player.kill()
+    assert "resuming: the performer was last seen" in out, out
+    after = [p for p, r in poses if r == 1]
+    assert len(after) >= 15, (len(poses), len(after), out[-3000:])
+    truth = {p.stamp_ns: p.position for p in map(msg_to_pose_stamped,
+                                                 (m.msg for m in read_messages(DEMO_BAG, ["/gt/root_pose"])))}
+    stamps = np.array(sorted(truth))
+    nearest = [int(stamps[np.argmin(np.abs(stamps - p.stamp_ns))]) for p in after]
+    assert all(abs(k - p.stamp_ns) < 1_000_000 for k, p in zip(nearest, after))  # truth of the same moment
+    errors = [np.linalg.norm(p.position - truth[k]) for k, p in zip(nearest, after)]
+    assert np.mean(errors) < 0.10, np.mean(errors)

@@ -30,6 +30,7 @@ SEED = 1
 SECONDS = 13.0
 DROPPED = (75, 76, 77)  # frames (walking) one segmenter never sees
 BLANKED = range(80, 95)  # frames (1.5 s) in which another one sees no performer returns at all
+RESUMED = 60  # frame (walking) at which a segmenter starts, restarted, knowing where the performer was 1 s before
 MIN_SCORE = 0.95
 R_L_M = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # facing the LiDAR
 OK = SegmentationStatus.OK
@@ -82,7 +83,8 @@ def blank_performer(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
 def capture_run(distance: float) -> tuple[CaptureSession, dict[str, Run], int]:
     """A 13 s walk at ``distance`` with clutter and a bystander, segmented by: ``all`` (every frame), ``dropped``
     (not DROPPED), ``occluded`` (BLANKED frames without the performer), and at 8 m also ``still`` (lock rule
-    'still' at the known spot) and ``message`` (through a PointCloud2 and ``cloud_to_array``). Also returns the
+    'still' at the known spot), ``message`` (through a PointCloud2 and ``cloud_to_array``) and ``resumed``
+    (from frame RESUMED on, with ``resume_xy`` the position ``all`` tracked 1 s before). Also returns the
     number of frames in which the bystander was seen."""
     session = CaptureSession(CaptureConfig(scenario="walk", seconds=SECONDS, seed=SEED, columns=1024,
                                            distance_m=distance, clutter=True, second_person=True))
@@ -97,6 +99,9 @@ def capture_run(distance: float) -> tuple[CaptureSession, dict[str, Run], int]:
         points, labels, stamp = cf.frame.points, cf.frame.labels, cf.stamp_ns
         bystander_seen += bool((labels == 1).any())
         results = {}
+        if distance == 8.0 and cf.index == RESUMED:
+            segmenters["resumed"] = PerformerSegmenter(SegmentationConfig(resume_xy=tuple(last_seen)))
+            runs["resumed"] = Run()
         for name, segmenter in segmenters.items():
             if name == "dropped" and cf.index in DROPPED:
                 continue
@@ -107,6 +112,8 @@ def capture_run(distance: float) -> tuple[CaptureSession, dict[str, Run], int]:
                 frame = cloud_to_array(array_to_cloud(backend, points, stamp, "os_lidar"))
             results[name] = segmenter.process(frame, stamp)
             runs[name].record(results[name], labels)
+        if cf.index == RESUMED - 10:
+            last_seen = results["all"].position
         if "message" in results:
             runs["message"].masks_equal.append(bool(np.array_equal(results["message"].mask, results["all"].mask)))
     return session, runs, bystander_seen
@@ -170,6 +177,13 @@ def test_still_rule_locks_in_the_a_pose():
     assert min(run.mean_scores()) >= MIN_SCORE
     with pytest.raises(ValueError, match="expected_xy"):
         SegmentationConfig(lock_rule="still")
+
+
+def test_a_restarted_segmenter_resumes_near_the_last_position():
+    _, runs, _ = capture_run(8.0)
+    run = runs["resumed"]
+    assert run.lock == 0 and "locked" in run.reason[0]  # at once, walking, no T-pose needed
+    assert min(run.mean_scores()) >= MIN_SCORE and sum(run.others) == 0
 
 
 def test_point_cloud_message_gives_the_same_result():

@@ -33,6 +33,11 @@ How (all vectorised over the range image, no per-point Python loops):
      ``expected_radius_m``) that stayed put for ``lock_frames`` frames; locks in
      the A-pose. The T-pose rule also needs ``lock_frames`` still frames.
 
+   With ``resume_xy`` (where the performer was last seen, e.g. before a
+   restart) a human-sized cluster within ``resume_radius_m`` of it is locked
+   at once, nearest first, whatever its pose; the rule above still applies
+   elsewhere.
+
    At the lock, the background learned under the performer is forgotten.
 4. **Tracking**: foreground returns in a window of columns around the
    performer's constant-velocity prediction are clustered; the performer and
@@ -96,6 +101,8 @@ class SegmentationConfig:
     expected_xy: tuple[float, float] | None = None  # where the performer calibrates (xy in L), if known
     expected_radius_m: float = 2.0
     lock_frames: int = 3  # frames a candidate must have stood still in
+    resume_xy: tuple[float, float] | None = None  # where the performer was last seen (resuming after a restart)
+    resume_radius_m: float = 3.0
     still_m: float = 0.3  # standing still: staying within this of where it stopped
     t_pose_width_m: float = 1.3  # widest outline (arms out) ...
     t_pose_side_m: float = 0.2  # ... grown on the left and on the right by this much since the narrowest
@@ -377,15 +384,23 @@ class PerformerSegmenter:
         """What the lock rule is waiting for."""
         cfg = self.config
         where = "" if cfg.expected_xy is None else f" within {cfg.expected_radius_m} m of {cfg.expected_xy}"
+        near = "" if cfg.resume_xy is None else (
+            f"none within {cfg.resume_radius_m} m of the last position {tuple(round(v, 2) for v in cfg.resume_xy)}, ")
         if cfg.lock_rule == "t_pose":
-            return f"no human-sized cluster{where} has stood still and spread its arms (T-pose)"
-        return f"no human-sized cluster{where} has stood still for {cfg.lock_frames} frames"
+            return f"{near}no human-sized cluster{where} has stood still and spread its arms (T-pose)"
+        return f"{near}no human-sized cluster{where} has stood still for {cfg.lock_frames} frames"
 
     def _lock_choice(self, seen: list[tuple[Track, int]]) -> tuple[Track, int] | None:
         """The candidate (track, its cluster) seen in this frame that the lock rule picks, if any."""
         cfg = self.config
         best, best_score = None, np.inf
         for track, k in seen:
+            if cfg.resume_xy is not None:
+                away = float(np.linalg.norm(track.position - np.asarray(cfg.resume_xy)))
+                if away <= cfg.resume_radius_m:  # resuming: any pose, before any candidate of the rule
+                    if away - 1e6 < best_score:
+                        best, best_score = (track, k), away - 1e6
+                    continue
             if track.stay_frames < cfg.lock_frames:
                 continue
             score = -float(track.widest.sum())
