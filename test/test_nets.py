@@ -10,6 +10,7 @@ from scipy.spatial.distance import cdist
 from lip_ros.core.rotations import rot_z
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_kinematics import SkeletonTensors, forward_kinematics, matrix_to_six_d
+from lip_ros.evaluation.report import VARIANTS as EVAL_VARIANTS
 from lip_ros.nets.config import VARIANTS, LipConfig
 from lip_ros.nets.lip_model import SHIPPED_WEIGHTS, LipModel, LipOutput
 from lip_ros.nets.losses import LOSS_NAMES, LossTargets, lip_losses
@@ -141,9 +142,10 @@ def test_ablation_variants_stream_and_drop_what_they_ablate(variant):
     assert out["offset"].shape == (b, t, 3)
 
 
-def test_unknown_variant_is_an_error():
+def test_unknown_variant_is_an_error_and_lip_eval_knows_every_ablation():
     with pytest.raises(ValueError, match="variant"):
         LipConfig(variant="lidar+12imus")
+    assert set(EVAL_VARIANTS) == set(VARIANTS) - {"full"}
 
 
 def test_bidirectional_model_cannot_stream():

@@ -25,7 +25,7 @@ VARIANTS = {
     "imu_only": "4 IMUs only",
     "no_prior": "w/o pose-prior regressor (RE)",
     "no_joint_map": "w/o joint-map estimator (JE)",
-    "corrector_no_pg": "corrector w/o pose guidance (PG)",
+    "trans_no_pose": "corrector w/o pose guidance (PG)",
 }
 #: The variants whose pose is compared (the last one only changes the translation).
 POSE_VARIANTS = ("lidar_only", "imu_only", "no_prior", "no_joint_map")
@@ -161,11 +161,11 @@ def to_markdown(report: dict) -> str:
     trans = res[OURS][mode0]["summary"]["translation"]
     rows = [["point average", _f(trans["point_average"]["trans_cm"], 2), _f(trans["point_average"]["cd_cm"], 2)],
             ["ICP (estimated body to the points)", _f(trans["icp"]["trans_cm"], 2), _f(trans["icp"]["cd_cm"], 2)]]
-    if "corrector_no_pg" in res:
-        t = res["corrector_no_pg"][mode0]["summary"]["translation"]["corrector"]
-        rows.append([VARIANTS["corrector_no_pg"], _f(t["trans_cm"], 2), _f(t["cd_cm"], 2)])
+    if "trans_no_pose" in res:
+        t = res["trans_no_pose"][mode0]["summary"]["translation"]["corrector"]
+        rows.append([VARIANTS["trans_no_pose"], _f(t["trans_cm"], 2), _f(t["cd_cm"], 2)])
     else:
-        rows.append([VARIANTS["corrector_no_pg"], "not trained", ""])
+        rows.append([VARIANTS["trans_no_pose"], "not trained", ""])
     rows.append(["full corrector (ours)", _f(trans["corrector"]["trans_cm"], 2), _f(trans["corrector"]["cd_cm"], 2)])
     lines += [*_table(["method", "Trans cm", "CD cm"], rows), ""]
 
