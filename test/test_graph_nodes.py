@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ import rclpy
 import yaml
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Imu
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
@@ -21,7 +22,9 @@ from helpers import DEMO_BAG, console_script
 from lip_msgs_py import msg_to_pose_stamped
 from lip_ros.bagio import read_messages
 from lip_ros.batch import replay_bag
+from lip_ros.core.urdf import URDF_FILE
 from lip_ros.nets.lip_model import LipModel
+from lip_ros.params import params_path
 from lip_ros.pipeline import LipPipeline, PipelineConfig
 
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
@@ -132,9 +135,11 @@ def test_a_restarted_graph_resumes_mid_capture(ros_node, tmp_path):
     files = {"calibration_file": tmp_path / "calibration.yaml", "performer_file": tmp_path / "performer.yaml"}
     args = ["-p", "use_sim_time:=true", *(a for k, v in files.items() for a in ("-p", f"{k}:={v}"))]
     poses: list[tuple[object, int]] = []
+    joint_states: list[JointState] = []
     run = [0]
     ros_node.create_subscription(PoseStamped, "/lip/root_pose",
                                  lambda m: poses.append((msg_to_pose_stamped(m), run[0])), RELIABLE)
+    ros_node.create_subscription(JointState, "/lip/joint_states", joint_states.append, RELIABLE)
     graph = _start("fusion_node", *args)
     inputs = ["/ouster/points", *(f"/dot/{n}/imu" for n in ("left_wrist", "right_wrist", "left_ankle", "right_ankle"))]
     player = subprocess.Popen([console_script("lip_bag_play"), str(DEMO_BAG), "--clock", "--rate", "0.5",
@@ -156,6 +161,10 @@ def test_a_restarted_graph_resumes_mid_capture(ros_node, tmp_path):
         if player.poll() is None:
             player.kill()
     assert "resuming: the performer was last seen" in out, out
+    # a plain rclpy subscriber got JointStates that robot_state_publisher can use with the shipped URDF
+    urdf_joints = [j.get("name") for j in ET.parse(params_path(URDF_FILE)).getroot().iter("joint")
+                   if j.get("type") == "revolute"]
+    assert len(joint_states) >= len(poses) - 5 and all(list(js.name) == urdf_joints for js in joint_states)
     after = [p for p, r in poses if r == 1]
     assert len(after) >= 15, (len(poses), len(after), out[-3000:])
     truth = {p.stamp_ns: p.position for p in map(msg_to_pose_stamped,

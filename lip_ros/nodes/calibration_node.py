@@ -83,6 +83,8 @@ class CalibrationNode(LipNode):
         self._bone_pubs = [self.create_publisher(Imu, topic, RELIABLE) for topic in p["bone_topics"]]
         self._state_pub = self.create_publisher(String, p["calibration_topic"], LATCHED)
         self._published_state: tuple[int, bool] | None = None
+        self._held = 0  # frames published with a held (not interpolated) sample of some DOT
+        self._last_sync = "no frame yet"
         for name, topic in zip(IMU_NAMES, p["imu_topics"]):
             self.add_input(name, topic, Imu, p["imu_rate_hz"], lambda msg, name=name: self._on_imu(name, msg))
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
@@ -115,10 +117,13 @@ class CalibrationNode(LipNode):
                 for pub, q, acc in zip(self._bone_pubs, quats, f.free_acc):
                     pub.publish(imu_to_msg(self.backend, imu_sample(f.pose_stamp_ns, frame_id, quat=q, accel=acc)))
                 self._latency.add(time.monotonic() - received)
+                self._held += bool(f.reason)
+                self._last_sync = f.reason or "all DOTs interpolated"
             elif f.outcome == Outcome.CALIBRATING:
                 self.count_frame(Outcome.CALIBRATING.value)
             else:
                 self.count_frame(f"skipped: {f.reason.split(':')[0]}", f"{f.pose_stamp_ns}: {f.reason}")
+                self._last_sync = f.reason
         if frames:
             self._publish_state()
 
@@ -154,10 +159,11 @@ class CalibrationNode(LipNode):
         return response
 
     def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
-        """Calibration state, frames waiting for DOT data, latency performer cloud -> bones published."""
+        """Calibration state, sync health, frames waiting for DOT data, latency performer cloud -> bones published."""
         level = DiagnosticLevel.OK if self.stage.calibrated else DiagnosticLevel.WARN
         return level, self.stage.status, {"calibration": "calibrated" if self.stage.calibrated else "none",
-                                          "pending": self.stage.pending, **self._latency.values("latency_ms")}
+                                          "pending": self.stage.pending, "bones with a held DOT sample": self._held,
+                                          "last sync": self._last_sync, **self._latency.values("latency_ms")}
 
 
 def main(argv: list[str] | None = None) -> int:
