@@ -37,7 +37,16 @@ from lip_ros.core.calibration import CalibrationError
 from lip_ros.core.imu_sync import SyncConfig
 from lip_ros.core.rotations import matrix_to_quat
 from lip_ros.nets.config import IMU_NAMES
-from lip_ros.nodes.base import RELIABLE, LatencyWindow, LipNode, Param, ParameterError, positive, run_nodes
+from lip_ros.nodes.base import (
+    BETWEEN_NODES,
+    IMU_INPUT,
+    LatencyWindow,
+    LipNode,
+    Param,
+    ParameterError,
+    positive,
+    run_nodes,
+)
 from lip_ros.stages import BoneFrame, ImuStage, Outcome
 
 __all__ = ["CalibrationNode", "main"]
@@ -80,15 +89,16 @@ class CalibrationNode(LipNode):
         except (OSError, ValueError, KeyError, CalibrationError) as exc:
             raise ParameterError(f"cannot load calibration_file {file}: {exc}") from exc
         self._latency = LatencyWindow()
-        self._bone_pubs = [self.create_publisher(Imu, topic, RELIABLE) for topic in p["bone_topics"]]
+        self._bone_pubs = [self.create_publisher(Imu, topic, BETWEEN_NODES) for topic in p["bone_topics"]]
         self._state_pub = self.create_publisher(String, p["calibration_topic"], LATCHED)
         self._published_state: tuple[int, bool] | None = None
         self._held = 0  # frames published with a held (not interpolated) sample of some DOT
         self._last_sync = "no frame yet"
         for name, topic in zip(IMU_NAMES, p["imu_topics"]):
-            self.add_input(name, topic, Imu, p["imu_rate_hz"], lambda msg, name=name: self._on_imu(name, msg))
+            self.add_input(name, topic, Imu, p["imu_rate_hz"], lambda msg, name=name: self._on_imu(name, msg),
+                           IMU_INPUT)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
-                       self._on_performer, RELIABLE)
+                       self._on_performer, BETWEEN_NODES)
         self.create_service(Trigger, "lip/start_calibration", self._on_start, callback_group=self.group)
         self.create_service(Trigger, "lip/reset_calibration", self._on_reset, callback_group=self.group)
         self._publish_state()

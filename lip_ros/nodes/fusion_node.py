@@ -1,10 +1,10 @@
 """fusion_node: the whole LIP graph in one process.
 
 Runs ``segmentation_node``, ``calibration_node`` and ``pose_node`` (each also
-an executable of its own, to split the graph over processes or machines) on
-one multi-threaded executor: every node has its own mutually exclusive
-callback group, so the stages work in parallel on consecutive frames while
-each stage sees its messages one at a time. Parameters come from the shipped
+an executable of its own, to split the graph over processes or machines) in
+one process, each node on its own thread with a single-threaded executor (and
+one mutually exclusive callback group): the stages work in parallel on
+consecutive frames while each stage sees its messages one at a time. Parameters come from the shipped
 ``params/lip.yaml`` and ``--ros-args`` (``-p name:=value`` applies to every
 node that has the parameter, ``--params-file`` sections to the named node).
 Being in one process, the graph also reports its latency from cloud receipt to

@@ -38,6 +38,7 @@ from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.nets.config import IMU_NAMES
 from lip_ros.nets.lip_model import LipModel
 from lip_ros.nodes.base import (
+    BETWEEN_NODES,
     RELIABLE,
     FrameArrivals,
     LatencyWindow,
@@ -91,10 +92,10 @@ class PoseNode(LipNode):
                                             (LIP_TOPICS.skeleton, "visualization_msgs/msg/MarkerArray"))}
         self._tf_pub = self._tf_publisher() if p["publish_tf"] else None
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
-                       lambda msg: self._on_input(_POINTS, msg), RELIABLE)
+                       lambda msg: self._on_input(_POINTS, msg), BETWEEN_NODES)
         for name, topic in zip(IMU_NAMES, p["bone_topics"]):
             self.add_input(f"bone {name}", topic, Imu, p["lidar_rate_hz"],
-                           lambda msg, name=name: self._on_input(name, msg), RELIABLE)
+                           lambda msg, name=name: self._on_input(name, msg), BETWEEN_NODES)
         self.get_logger().info(f"ready; weights {p['weights'] or '(shipped)'}")
 
     def _tf_publisher(self) -> Any:

@@ -26,7 +26,7 @@ from sensor_msgs.msg import PointCloud2
 
 from lip_msgs_py import DiagnosticLevel, MalformedMessageError, cloud_to_array, read_header, xyz_to_cloud
 from lip_ros.core.segmentation import PerformerSegmenter, SegmentationConfig, SegmentationStatus
-from lip_ros.nodes.base import RELIABLE, FrameArrivals, LatencyWindow, LipNode, Param, run_nodes
+from lip_ros.nodes.base import BETWEEN_NODES, FrameArrivals, LatencyWindow, LipNode, Param, run_nodes
 
 __all__ = ["SegmentationNode", "main"]
 
@@ -52,7 +52,7 @@ class SegmentationNode(LipNode):
         self._arrivals = arrivals
         self._latency = LatencyWindow()
         self._last_status = "no frame yet"
-        self._pub = self.create_publisher(PointCloud2, p["performer_topic"], RELIABLE)
+        self._pub = self.create_publisher(PointCloud2, p["performer_topic"], BETWEEN_NODES)
         self.add_input(p["lidar_name"], p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud)
 
     def _on_cloud(self, msg: PointCloud2) -> int:

@@ -2,11 +2,14 @@
 
 Starts ``fusion_node`` (sim time), ``lip_bag_record OUT`` (the output topics and
 ``/diagnostics``) and ``lip_bag_play IN --clock`` as separate processes over real
-DDS, waits until the node has accounted for every LiDAR frame of IN (a pose,
-calibrating, or skipped with a reason, or still pending for IMU data at the
-end of the bag), stops them and prints a summary: frames in/out/skipped,
-latency percentiles, and accuracy against ``/gt`` when IN has ground truth. With
-``--plot`` it also draws the trajectory and a few skeleton frames.
+DDS, waits until the graph's nodes have accounted for every LiDAR frame of IN (a
+pose, calibrating, or skipped with a reason, or still pending for IMU data at
+the end of the bag: the ``frames ...`` values of their ``<node>: frames``
+diagnostics), stops them and prints a summary: frames in/out/skipped,
+latency percentiles, accuracy against ``/gt`` when IN has ground truth, and the
+wall time from the start of playback to the last pose as a multiple of real
+time (``--rate`` plays the bag faster). With ``--plot`` it also draws the
+trajectory and a few skeleton frames.
 """
 
 from __future__ import annotations
@@ -15,18 +18,24 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 
-from lip_msgs_py import msg_to_diagnostics, msg_to_pose_array
-from lip_ros.bagio import bag_topics, read_messages
+from lip_msgs_py import msg_to_diagnostics, msg_to_pose_array, stamp_to_ns
+from lip_msgs_py.stamps import NS_PER_S
+from lip_ros.bagio import bag_span, bag_topics, read_messages
 from lip_ros.core.rotations import geodesic_angle, quat_to_matrix
 from lip_ros.outputs import GT_TOPICS, LIP_TOPICS
-from lip_ros.tools.ros_cli import ArgumentParser, ToolError, run_tool, start_ros, tool_args
+from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
+from lip_ros.tools.ros_cli import ArgumentParser, ToolError, installed_script, run_tool, start_ros, tool_args
 
 __all__ = ["main", "ProcessSummary", "summarize_outputs"]
 
@@ -35,13 +44,7 @@ INPUTS = ["/ouster/points", "/dot/left_wrist/imu", "/dot/right_wrist/imu", "/dot
 OUTPUTS = [LIP_TOPICS.joint_states, LIP_TOPICS.root_pose, LIP_TOPICS.joint_poses, LIP_TOPICS.skeleton,
            "/diagnostics"]
 MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their stamps are this close
-
-
-def _script(name: str) -> str:
-    exe = Path(sys.executable).parent / name
-    if not exe.is_file():
-        raise ToolError(f"{name} is not installed beside {sys.executable}")
-    return str(exe)
+POSE_FRAMES = "pose_node: frames"  # the diagnostic status with the poses and the graph's latency
 
 
 @dataclass
@@ -55,16 +58,24 @@ class ProcessSummary:
     translation_cm: float | None = None
     mpjpe_mm: float | None = None  # root-relative, from /lip/joint_poses
     angular_deg: float | None = None  # mean geodesic error of the 24 global joint rotations
+    bag_s: float | None = None  # duration of the input bag
+    wall_s: float | None = None  # start of playback to the last pose (or the end of playback, if later)
+    rate: float = 1.0  # the player's speed factor
 
     def lines(self) -> list[str]:
         """Human-readable report."""
-        out = [f"frames in: {self.frames_in}; " + ", ".join(f"{k} {v}" for k, v in sorted(self.frames.items()))]
+        unaccounted = self.frames_in - sum(self.frames.values())
+        out = [f"frames in: {self.frames_in}; " + ", ".join(f"{k} {v}" for k, v in sorted(self.frames.items()))
+               + (f"; not accounted for {unaccounted}" if unaccounted else "")]
         if self.latency_ms:
             out.append("latency (cloud received -> pose published): "
                        + ", ".join(f"{k} {v:.1f} ms" for k, v in self.latency_ms.items()))
         if self.translation_cm is not None:
             out.append(f"accuracy on {self.matched} frames vs /gt: root translation {self.translation_cm:.1f} cm, "
                        f"MPJPE {self.mpjpe_mm:.1f} mm, global angular error {self.angular_deg:.1f} deg")
+        if self.wall_s is not None and self.bag_s is not None:
+            out.append(f"wall time (playback start -> last pose): {self.wall_s:.1f} s for {self.bag_s:.1f} s of bag, "
+                       f"{self.bag_s / self.wall_s:.2f}x real time (--rate {self.rate:g})")
         return out
 
 
@@ -78,13 +89,15 @@ def _poses(bag: Path, topic: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
 
 def summarize_outputs(inputs: Path, outputs: Path) -> ProcessSummary:
     """Frame accounting (last /diagnostics of the node) and accuracy against the inputs' /gt topics."""
-    diags = [msg_to_diagnostics(m.msg) for m in read_messages(outputs, ["/diagnostics"])]
-    pipeline = [s for d in diags for s in d.statuses if s.name.endswith(": pipeline")]
-    if not pipeline:
-        raise ToolError(f"{outputs} holds no diagnostics of fusion_node")
-    values = pipeline[-1].values
-    frames = {k.removeprefix("frames "): int(v) for k, v in values.items() if k.startswith("frames ") and int(v)}
-    latency = {k.removeprefix("latency_ms_"): float(v) for k, v in values.items() if k.startswith("latency_ms_")}
+    last = {}  # status name -> its last values
+    for m in read_messages(outputs, ["/diagnostics"]):
+        last.update((s.name, s.values) for s in msg_to_diagnostics(m.msg).statuses)
+    if POSE_FRAMES not in last:
+        raise ToolError(f"{outputs} holds no diagnostics of the LIP graph ({POSE_FRAMES})")
+    frames = {k.removeprefix("frames "): int(v) for name, values in last.items() if name.endswith(": frames")
+              for k, v in values.items() if k.startswith("frames ") and int(v)}
+    latency = {k.removeprefix("graph_latency_ms_"): float(v) for k, v in last[POSE_FRAMES].items()
+               if k.startswith("graph_latency_ms_")}
     summary = ProcessSummary(bag_topics(inputs)["/ouster/points"].count, frames, latency)
     if GT_TOPICS.joint_poses not in bag_topics(inputs):
         return summary
@@ -149,28 +162,57 @@ def plot_outputs(inputs: Path, outputs: Path, png: Path) -> Path:
     return png
 
 
-def _wait_accounted(node: subprocess.Popen, frames_in: int, timeout_s: float) -> None:
-    """Wait until the node's diagnostics account for every input frame (they are recorded as they come)."""
-    node_ros = rclpy.create_node("lip_process_bag")
-    seen: list[int] = [0]
+class _Watch:
+    """What the tool sees of the running graph: when playback started and ended, the last pose, frames accounted."""
 
-    def on_diag(msg: DiagnosticArray) -> None:
+    def __init__(self, bag_start_ns: int, rate: float) -> None:
+        self.node = rclpy.create_node("lip_process_bag")
+        self.bag_start_ns, self.rate = bag_start_ns, rate
+        self.started: float | None = None  # monotonic s at which the player's bag time was bag_start_ns
+        self.last_clock: float | None = None
+        self.last_pose: float | None = None
+        self.accounted = 0  # frames with an outcome or pending, per the nodes' last diagnostics
+        self._counts: dict[str, int] = {}  # "<node>: frames" -> frames accounted for there
+        self.node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, CLOCK_QOS)
+        self.node.create_subscription(PoseStamped, LIP_TOPICS.root_pose, self._on_pose,
+                                      QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
+
+    def _on_clock(self, msg: Clock) -> None:
+        now = time.monotonic()
+        started = now - (stamp_to_ns(msg.clock) - self.bag_start_ns) / NS_PER_S / self.rate
+        self.started = started if self.started is None else min(self.started, started)  # least delayed /clock
+        self.last_clock = now
+
+    def _on_pose(self, _msg: PoseStamped) -> None:
+        self.last_pose = time.monotonic()
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
         for s in msg_to_diagnostics(msg).statuses:
-            if s.name.endswith(": pipeline"):
-                seen[0] = sum(int(v) for k, v in s.values.items() if k.startswith("frames "))
+            if s.name.endswith(": frames"):
+                self._counts[s.name] = sum(int(v) for k, v in s.values.items()
+                                           if k.startswith("frames ") or k == "pending")
+        self.accounted = sum(self._counts.values())
 
-    node_ros.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
-    deadline = time.monotonic() + timeout_s
-    while seen[0] < frames_in and time.monotonic() < deadline and node.poll() is None:
-        rclpy.spin_once(node_ros, timeout_sec=0.2)
-    node_ros.destroy_node()
+    def spin_while(self, busy: Callable[[], bool], timeout_s: float) -> None:
+        """Take messages while ``busy()`` and for at most ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while busy() and time.monotonic() < deadline:
+            rclpy.spin_once(self.node, timeout_sec=0.1)
+
+    def wall_s(self) -> float | None:
+        """Start of playback to the last pose, or to the end of playback if that came later."""
+        if self.started is None or self.last_clock is None:
+            return None
+        return max(self.last_clock, self.last_pose or 0.0) - self.started
 
 
 def _run(argv: list[str]) -> int:
     p = ArgumentParser(prog="lip_process_bag", description=__doc__.split("\n\n")[0])
     p.add_argument("inputs", type=Path, help="bag with /ouster/points and /dot/*/imu (and /gt/* if synthetic)")
     p.add_argument("outputs", type=Path, help="bag directory to create with the graph's outputs")
-    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor")
+    p.add_argument("--rate", type=float, default=1.0,
+                   help="playback speed factor (default 1: real time; 3 plays the bag 3x faster)")
     p.add_argument("--plot", type=Path, help="write a PNG of the trajectory and skeleton frames here")
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the last frames after playback")
     args = p.parse_args(tool_args(argv))
@@ -181,24 +223,33 @@ def _run(argv: list[str]) -> int:
     frames_in = bag_topics(args.inputs).get("/ouster/points")
     if frames_in is None:
         raise ToolError(f"{args.inputs} has no /ouster/points")
+    if not args.rate > 0:
+        raise ToolError(f"--rate must be > 0, got {args.rate}")
     start_ros(argv)
+    first_ns, last_ns = bag_span(args.inputs)
+    watch = _Watch(first_ns, args.rate)
     calibration = args.outputs.with_name(args.outputs.name + "_calibration.yaml")
-    node = subprocess.Popen([_script("fusion_node"), "--ros-args", "-p", "use_sim_time:=true",
+    node = subprocess.Popen([installed_script("fusion_node"), "--ros-args", "-p", "use_sim_time:=true",
                              "-p", "diagnostics_period_s:=0.5", "-p", f"calibration_file:={calibration}"])
-    recorder = subprocess.Popen([_script("lip_bag_record"), str(args.outputs), "--topics", *OUTPUTS],
+    recorder = subprocess.Popen([installed_script("lip_bag_record"), str(args.outputs), "--topics", *OUTPUTS],
                                 stdout=subprocess.DEVNULL)
+    procs = [node, recorder]
     try:
-        play = subprocess.run([_script("lip_bag_play"), str(args.inputs), "--clock", "--wait-for-subscribers",
-                               "--rate", str(args.rate), "--topics", *INPUTS])
+        play = subprocess.Popen([installed_script("lip_bag_play"), str(args.inputs), "--clock",
+                                 "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *INPUTS])
+        procs.append(play)
+        watch.spin_while(lambda: play.poll() is None, float("inf"))
         if play.returncode != 0:
             raise ToolError("lip_bag_play failed")
-        _wait_accounted(node, frames_in.count, args.timeout)
+        watch.spin_while(lambda: watch.accounted < frames_in.count and node.poll() is None, args.timeout)
         time.sleep(1.0)  # one more diagnostics period reaches the recorder
     finally:
-        for proc in (recorder, node):
+        for proc in reversed(procs):  # the player if still running, the recorder, the node
             proc.send_signal(signal.SIGINT)
             proc.wait(timeout=30)
+        watch.node.destroy_node()
     summary = summarize_outputs(args.inputs, args.outputs)
+    summary.bag_s, summary.wall_s, summary.rate = (last_ns - first_ns) / NS_PER_S, watch.wall_s(), args.rate
     print("\n".join(summary.lines()))
     if args.plot:
         print(f"plot: {plot_outputs(args.inputs, args.outputs, args.plot)}")

@@ -8,6 +8,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import NoReturn
 
 import rclpy
@@ -15,7 +16,8 @@ from rclpy.signals import SignalHandlerOptions
 
 from lip_ros.middleware import use_lip_dds_profile
 
-__all__ = ["ToolError", "ArgumentParser", "tool_args", "start_ros", "stop_on_signals", "run_tool", "Progress"]
+__all__ = ["ToolError", "ArgumentParser", "tool_args", "start_ros", "stop_on_signals", "run_tool", "Progress",
+           "installed_script"]
 
 
 class ToolError(Exception):
@@ -32,6 +34,14 @@ class ArgumentParser(argparse.ArgumentParser):
 def tool_args(argv: list[str]) -> list[str]:
     """The tool's own arguments: ``argv`` without the program name and ROS arguments (``--ros-args ...``)."""
     return rclpy.utilities.remove_ros_args(argv)[1:]
+
+
+def installed_script(name: str) -> str:
+    """Path of the console script ``name`` installed beside the running Python (the package's other tools)."""
+    exe = Path(sys.executable).parent / name
+    if not exe.is_file():
+        raise ToolError(f"{name} is not installed beside {sys.executable}")
+    return str(exe)
 
 
 def start_ros(argv: list[str]) -> None:
