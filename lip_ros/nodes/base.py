@@ -17,6 +17,7 @@ once; other values (pending, latency) are named otherwise.
 
 from __future__ import annotations
 
+import gc
 import sys
 import threading
 from collections import Counter, deque
@@ -336,6 +337,8 @@ def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], LipN
         print(f"{prog}: parameter error: {exc}", file=sys.stderr)
         _shutdown(nodes)
         return 2
+    gc.freeze()  # the models and messages types loaded so far are never garbage: keep the collector off them
+    sys.setswitchinterval(0.001)  # the threads of a graph take turns on the GIL within a millisecond, not five
     try:
         errors = _spin_each(nodes)
     except KeyboardInterrupt:
