@@ -20,3 +20,15 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture()
+def ros_node():
+    """An rclpy node of the test process (its own context for the test), to publish, subscribe and call."""
+    import rclpy
+
+    rclpy.init()
+    node = rclpy.create_node("lip_ros_test_driver")
+    yield node
+    node.destroy_node()
+    rclpy.shutdown()

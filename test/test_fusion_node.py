@@ -7,7 +7,6 @@ import subprocess
 import time
 
 import numpy as np
-import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import qos_profile_sensor_data
@@ -17,15 +16,6 @@ from helpers import console_script
 from lip_msgs_py import OUSTER_ORIGINAL_DTYPE, RclpyBackend, array_to_cloud, msg_to_diagnostics
 
 IMUS = ("left_wrist", "right_wrist", "left_ankle", "right_ankle")
-
-
-@pytest.fixture()
-def ros_node():
-    rclpy.init()
-    node = rclpy.create_node("fusion_node_test_driver")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
 
 
 def _imu(stamp_ns: int, quat: tuple[float, float, float, float]) -> Imu:

@@ -42,15 +42,6 @@ def saved_calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-@pytest.fixture()
-def ros_node():
-    rclpy.init()
-    node = rclpy.create_node("graph_nodes_test")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
-
-
 def _start(exe: str, *ros_args: str) -> subprocess.Popen:
     return subprocess.Popen([console_script(exe), "--ros-args", *ros_args], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)

@@ -95,6 +95,7 @@ def capture_run(distance: float) -> tuple[CaptureSession, dict[str, Run], int]:
     runs = {name: Run() for name in segmenters}
     backend = RosbagsBackend()
     bystander_seen = 0
+    last_seen = None  # where ``all`` tracked the performer 1 s before RESUMED
     for cf in session.frames():
         points, labels, stamp = cf.frame.points, cf.frame.labels, cf.stamp_ns
         bystander_seen += bool((labels == 1).any())
