@@ -94,7 +94,7 @@ def test_accuracy_after_calibration(replayed, capture):
 class _FlushOnly(LipPipeline):
     """Never processes before the end: every frame waits for ``flush``."""
 
-    def poll(self, now_ns: int) -> list[FrameResult]:
+    def poll(self, now_ns: int | None = None) -> list[FrameResult]:
         return []
 
 
