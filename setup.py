@@ -21,6 +21,7 @@ CORE = [
     "PyYAML>=6,<7",
     "rosbags>=0.11.9,<0.12",
     "mcap>=1.2,<2",
+    "zstandard>=0.22,<1",  # also an mcap dependency; lip_ros.bagstream decompresses chunks with it
     "fpsample>=1.0,<2",
     "matplotlib>=3.8,<4",
 ]

@@ -66,11 +66,12 @@ class BagMessage:
 
 @dataclass(frozen=True)
 class RawMessage:
-    """One message as CDR bytes (with the encapsulation header) and the time the recorder received it."""
+    """One message as CDR bytes (with the encapsulation header), its type and the time the recorder received it."""
 
     topic: str
     log_ns: int
-    data: bytes
+    data: bytes | memoryview  # bytes from read_raw; a view from lip_ros.bagstream.stream_raw (see there)
+    msgtype: str
 
 
 @dataclass(frozen=True)
@@ -138,7 +139,7 @@ def read_raw(path: str | Path, topics: Iterable[str] | None = None,
         conns = _connections(reader, topics)
         if conns:
             for conn, log_ns, raw in reader.messages(connections=conns, start=start_ns):
-                yield RawMessage(conn.topic, log_ns, bytes(raw))
+                yield RawMessage(conn.topic, log_ns, bytes(raw), conn.msgtype)
 
 
 def mcap_writer(path: str | Path, zstd: bool = False) -> Writer:

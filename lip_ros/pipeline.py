@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -57,8 +58,8 @@ class StageTimes:
 
     segmentation: float = 0.0
     sync_calibration: float = 0.0  # IMU interpolation, calibration attempts, equation 13
-    network: float = 0.0
-    kinematics: float = 0.0
+    network: float = 0.0  # with LipPipeline.pose_batch > 1: the frame's share of its group's forward
+    kinematics: float = 0.0  # likewise
 
     @property
     def total(self) -> float:
@@ -88,7 +89,13 @@ class Segmenter(Protocol):
 
 class LipPipeline:
     """Segmentation, then :class:`~lip_ros.stages.ImuStage` and :class:`~lip_ros.stages.PoseStage`, for one
-    performer."""
+    performer.
+
+    ``pose_batch``: with 1 (live) every frame comes out as soon as it is processed; with more, frames from the
+    first one with a pose on are held until ``pose_batch`` of them have a pose (or ``flush``), then go through
+    the network in one forward (:meth:`~lip_ros.stages.PoseStage.estimate_sequence`): the same results, in
+    groups, for a fraction of the network's time (batch tools).
+    """
 
     def __init__(
         self,
@@ -97,14 +104,19 @@ class LipPipeline:
         calibration: Calibration | None = None,
         skeleton: Skeleton | None = None,
         segmenter: Segmenter | None = None,
+        pose_batch: int = 1,
     ) -> None:
+        if pose_batch < 1:
+            raise ValueError(f"pose_batch must be at least 1, not {pose_batch}")
         self.config = config or PipelineConfig()
+        self.pose_batch = pose_batch
         self.skeleton = skeleton or load_skeleton()
         self.segmenter = segmenter or PerformerSegmenter(self.config.segmentation)
         self.imu = ImuStage(self.config.sync, self.config.calibration, self.skeleton, calibration,
                             self.config.calibration_file, self.config.max_pending_frames)
         self.poser = PoseStage(model, self.skeleton)
         self.imu_rejections: Counter[tuple[str, str]] = Counter()  # (sensor, reason) -> count
+        self._held: list[BoneFrame] = []  # processed frames waiting for the network (pose_batch > 1)
 
     @property
     def model(self) -> LipModel:
@@ -123,8 +135,8 @@ class LipPipeline:
 
     @property
     def pending(self) -> int:
-        """Frames segmented and waiting for IMU data that covers their pose time."""
-        return self.imu.pending
+        """Frames segmented and waiting for IMU data that covers their pose time, or for the network."""
+        return self.imu.pending + len(self._held)
 
     @property
     def calibration_status(self) -> str:
@@ -137,6 +149,14 @@ class LipPipeline:
         if reason is not None:
             self.imu_rejections[name, reason] += 1
         return reason
+
+    def add_imus(self, names: Sequence[str], samples: Sequence[ImuSampleLike]) -> list[FrameResult]:
+        """Samples in arrival order, each as ``add_imu`` followed by ``poll`` (the same results), validated
+        together, which is cheaper; the frames that came out."""
+        reasons, frames = self.imu.add_imus(names, samples)
+        self.imu_rejections.update((name, reason) for name, reason in zip(names, reasons, strict=True)
+                                   if reason is not None)
+        return self._results(frames)
 
     def reject_imu(self, name: str, reason: str) -> None:
         """Account for an IMU message that could not be read at all."""
@@ -162,16 +182,34 @@ class LipPipeline:
 
     def flush(self) -> list[FrameResult]:
         """Process every waiting frame (end of a bag)."""
-        return self._results(self.imu.flush())
+        return self._results(self.imu.flush(), final=True)
 
-    def _results(self, frames: list[BoneFrame]) -> list[FrameResult]:
-        return [self._result(f) for f in frames]
+    def _results(self, frames: list[BoneFrame], final: bool = False) -> list[FrameResult]:
+        if self.pose_batch == 1:
+            return [self._result(f, self._estimate(f)) for f in frames]
+        self._held += frames
+        first = next((k for k, f in enumerate(self._held) if f.outcome == Outcome.POSE), len(self._held))
+        if not final and sum(f.outcome == Outcome.POSE for f in self._held) < self.pose_batch:
+            out, self._held = self._held[:first], self._held[first:]  # the frames before the first pose go
+            return [self._result(f) for f in out]
+        out, self._held = self._held, []
+        posed = [f for f in out if f.outcome == Outcome.POSE]
+        poses = iter(self.poser.estimate_sequence([f.pose_stamp_ns for f in posed], [f.points for f in posed],
+                                                  np.array([f.bone_rot for f in posed]),
+                                                  np.array([f.free_acc for f in posed])))
+        return [self._result(f, next(poses) if f.outcome == Outcome.POSE else None) for f in out]
 
-    def _result(self, f: BoneFrame) -> FrameResult:
-        seg, seg_s = f.tag
+    def _estimate(self, f: BoneFrame) -> tuple[LipPose, float, float] | None:
         if f.outcome != Outcome.POSE:
+            return None
+        return self.poser.estimate(f.pose_stamp_ns, f.points, f.bone_rot, f.free_acc)
+
+    @staticmethod
+    def _result(f: BoneFrame, estimate: tuple[LipPose, float, float] | None = None) -> FrameResult:
+        seg, seg_s = f.tag
+        if estimate is None:
             return FrameResult(f.frame_stamp_ns, f.outcome, f.reason, seg, f.sync,
                                timing=StageTimes(seg_s, f.seconds))
-        pose, net_s, fk_s = self.poser.estimate(f.pose_stamp_ns, f.points, f.bone_rot, f.free_acc)
+        pose, net_s, fk_s = estimate
         return FrameResult(f.frame_stamp_ns, Outcome.POSE, f.reason, seg, f.sync, pose,
                            StageTimes(seg_s, f.seconds, net_s, fk_s))

@@ -17,8 +17,10 @@ batch tools; both call the same code, so a bag gives the same poses either way.
 from __future__ import annotations
 
 import enum
+import itertools
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -164,7 +166,23 @@ class ImuStage:
 
     def add_imu(self, name: str, sample: ImuSampleLike) -> str | None:
         """One DOT sample (R_I_S, rate and specific force in S); why it was rejected, None if kept."""
-        reason = self.sync.add(name, sample)
+        return self._keep(name, sample, self.sync.add(name, sample))
+
+    def add_imus(self, names: Sequence[str], samples: Sequence[ImuSampleLike]
+                 ) -> tuple[list[str | None], list[BoneFrame]]:
+        """Samples in arrival order, each as :meth:`add_imu` followed by :meth:`poll` (the same results), validated
+        together, which is cheaper; why each was rejected (None if kept), and the frames that came out."""
+        rows, codes = self.sync.validate(samples)
+        reasons, done = [], []
+        for name, sample, row, code in zip(names, samples, rows, codes.tolist(), strict=True):
+            reason = self._keep(name, sample, self.sync.insert(name, int(sample.stamp_ns), row, code))
+            reasons.append(reason)
+            if reason is None:  # a rejected sample changes nothing that makes a frame ready
+                done += self.poll()
+        return reasons, done
+
+    def _keep(self, name: str, sample: ImuSampleLike, reason: str | None) -> str | None:
+        """Remember a sample the synchroniser kept for the calibration, while one is being looked for."""
         if reason is None and self._detector is not None:
             self._calibration_samples.append((name, sample))
         return reason
@@ -196,6 +214,8 @@ class ImuStage:
         ``max_pending`` frames; and the outcome depends on the data alone, not
         on when it is processed, live or from a bag.
         """
+        if not self._pending:  # nothing waits: no need for the data time
+            return []
         now_ns = self.data_time_ns if now_ns is None else now_ns
         if now_ns is None:
             return []
@@ -292,3 +312,32 @@ class PoseStage:
                                        self.skeleton.offsets * out.body_scale)
         pose = LipPose(stamp_ns, out.translation, out.local_rot, glob, pos, float(out.body_scale))
         return pose, t_fk - start, time.perf_counter() - t_fk
+
+    def estimate_sequence(self, stamps_ns: Sequence[int], points: Sequence[np.ndarray], bone_rot: np.ndarray,
+                          free_acc: np.ndarray) -> list[tuple[LipPose, float, float]]:
+        """:meth:`estimate` of each frame in turn (the same poses up to float rounding, the same new sequences),
+        with one network forward per run of frames without a gap and the kinematics of all frames at once; the
+        seconds are each frame's share."""
+        if not len(stamps_ns):
+            return []
+        start = time.perf_counter()
+        new = set()  # frames that start a new sequence
+        last = self._last_ns
+        for k, stamp_ns in enumerate(stamps_ns):
+            if last is None or stamp_ns - last > self.max_gap_ns:
+                new.add(k)
+            last = stamp_ns
+        outs = []
+        for a, b in itertools.pairwise(sorted({0, *new, len(stamps_ns)})):
+            if a in new:
+                self.model.reset()
+                self.sequences += 1
+            outs.append(self.model.stream(points[a:b], bone_rot[a:b], free_acc[a:b]))
+        self._last_ns = stamps_ns[-1]
+        rot, trans, scale = (np.concatenate([getattr(o, k) for o in outs]) for k in ("local_rot", "translation",
+                                                                                      "body_scale"))
+        t_fk = time.perf_counter()
+        glob, pos = forward_kinematics(self.skeleton, rot, trans, self.skeleton.offsets * scale[:, None, None])
+        net_s, fk_s = (t_fk - start) / len(rot), (time.perf_counter() - t_fk) / len(rot)
+        return [(LipPose(int(t), trans[k], rot[k], glob[k], pos[k], float(scale[k])), net_s, fk_s)
+                for k, t in enumerate(stamps_ns)]

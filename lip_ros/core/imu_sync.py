@@ -38,7 +38,7 @@ overflow.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol
@@ -348,15 +348,23 @@ class ImuSynchronizer:
 
     def add(self, name: str, sample: ImuSampleLike) -> str | None:
         """Buffer one sample of sensor ``name``; returns why it was rejected, None if kept."""
-        rows, code = _validate(
-            np.array([sample.stamp_ns], dtype=np.int64),
-            np.reshape(sample.quat, (1, 4)),
-            np.reshape(sample.gyro, (1, 3)),
-            np.reshape(sample.accel, (1, 3)),
+        rows, codes = self.validate([sample])
+        return self.insert(name, int(sample.stamp_ns), rows[0], int(codes[0]))
+
+    def validate(self, samples: Sequence[ImuSampleLike]) -> tuple[np.ndarray, np.ndarray]:
+        """Samples as (N, 10) rows [unit quat, gyro, accel] and rejection codes (-1: valid) for :meth:`insert`;
+        many at once cost about what one does, and each row is what validating it alone gives."""
+        return _validate(
+            np.array([s.stamp_ns for s in samples], dtype=np.int64),
+            np.reshape([s.quat for s in samples], (-1, 4)),
+            np.reshape([s.gyro for s in samples], (-1, 3)),
+            np.reshape([s.accel for s in samples], (-1, 3)),
             self.config.quat_norm_tolerance,
         )
-        buffer = self._buffers[name]
-        reason = _REJECTS[code[0]] if code[0] >= 0 else buffer.insert(int(sample.stamp_ns), rows[0])
+
+    def insert(self, name: str, stamp_ns: int, row: np.ndarray, code: int) -> str | None:
+        """Buffer one sample of sensor ``name`` validated by :meth:`validate`; why it was rejected, None if kept."""
+        reason = _REJECTS[code] if code >= 0 else self._buffers[name].insert(stamp_ns, row)
         if reason is not None:
             self.rejected[name][reason] += 1
         return reason

@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lip_ros.batch import replay_bag
+from lip_ros.batch import POSE_BATCH, process_bag_batch
 from lip_ros.core.skeleton import NUM_JOINTS, forward_kinematics, load_skeleton
 from lip_ros.evaluation import metrics
 from lip_ros.evaluation.captures import CaptureTruth
@@ -172,9 +172,10 @@ class _Scorer:
 
 def _pipeline(capture: CaptureTruth, model: LipModel, mode: str) -> LipPipeline:
     if mode == "end_to_end":
-        return LipPipeline(model)
+        return LipPipeline(model, pose_batch=POSE_BATCH)
     if mode == "oracle":
-        return LipPipeline(model, calibration=truth_calibration(capture), segmenter=LabelSegmenter(capture))
+        return LipPipeline(model, calibration=truth_calibration(capture), segmenter=LabelSegmenter(capture),
+                           pose_batch=POSE_BATCH)
     raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
 
 
@@ -186,7 +187,7 @@ def evaluate_capture(capture: CaptureTruth, model: LipModel, mode: str,
     gt_stamps = capture.gt_stamp_ns
     tolerance_ns = int(0.5e9 / capture.rate_hz)
     posed, frames, gt, diffs = [], [], [], []
-    for result in replay_bag(_pipeline(capture, model, mode), capture.bag):
+    for result in process_bag_batch(_pipeline(capture, model, mode), capture.bag):
         ev.frames += 1
         k = capture.frame_index(result.frame_stamp_ns)
         if k is None:

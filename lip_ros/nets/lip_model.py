@@ -3,8 +3,9 @@
 :class:`LipModel` wraps a :class:`~lip_ros.nets.models.LipNet` with the
 preprocessing (:class:`~lip_ros.nets.preprocess.Preprocessor`) and the way
 back from the view frame V to L. ``step`` carries the GRU states (and the
-last point mean) from frame to frame; ``run`` feeds a whole sequence through
-one batched forward. Both give the same numbers (up to float rounding).
+last point mean) from frame to frame, ``stream`` does the same for several
+frames in one forward (batch tools); ``run`` feeds a whole sequence through
+one batched forward. All give the same numbers (up to float rounding).
 The published joints are forward kinematics of the estimated rotations on
 the contract skeleton, scaled by the body scale that best fits the refined
 joint map over the sequence so far (least squares), so joints and rotations
@@ -122,24 +123,32 @@ class LipModel:
         self._state = None
         self._scale = _ScaleTracker()
 
-    @torch.no_grad()
     def step(self, points: np.ndarray, imu_rot: np.ndarray, imu_acc: np.ndarray) -> LipOutput:
         """One LiDAR frame: performer points (N, 3) in L (N may be 0), bone rotations (4, 3, 3) and free
         accelerations (4, 3) in L at the frame's pose time, order ``IMU_NAMES``; the pose at that time."""
-        if self.config.bidirectional:
-            raise ValueError("a bidirectional (offline) model cannot stream; use run()")
-        frame = self._pre(points, imu_rot, imu_acc)
-        out, self._state = self.net(*stack_frames([frame]), self._state)
-        result = _to_lidar(out, [frame], self._scale)
+        result = self.stream([points], [imu_rot], [imu_acc])
         return LipOutput(*(getattr(result, k)[0] for k in LipOutput.__dataclass_fields__))
 
-    @torch.no_grad()
+    def stream(self, clouds: Sequence[np.ndarray], imu_rot: Sequence[np.ndarray], imu_acc: Sequence[np.ndarray]
+               ) -> LipOutput:
+        """The next T frames of the streamed sequence in one forward: ``step`` of each in turn (up to float
+        rounding); T clouds (N_t, 3), (T, 4, 3, 3), (T, 4, 3); outputs with a leading T."""
+        if self.config.bidirectional:
+            raise ValueError("a bidirectional (offline) model cannot stream; use run()")
+        result, self._state = self._forward(self._pre, clouds, imu_rot, imu_acc, self._state, self._scale)
+        return result
+
     def run(self, clouds: Sequence[np.ndarray], imu_rot: np.ndarray, imu_acc: np.ndarray) -> LipOutput:
         """A whole sequence from its start: T clouds (N_t, 3), (T, 4, 3, 3), (T, 4, 3); outputs with a leading T.
 
         Independent of (and not changing) the streaming state of ``step``.
         """
-        pre = Preprocessor(self.config.num_points)
+        return self._forward(Preprocessor(self.config.num_points), clouds, imu_rot, imu_acc, None, _ScaleTracker())[0]
+
+    @torch.no_grad()
+    def _forward(self, pre: Preprocessor, clouds: Sequence[np.ndarray], imu_rot: Sequence[np.ndarray],
+                 imu_acc: Sequence[np.ndarray], state: State | None, scale: _ScaleTracker) -> tuple[LipOutput, State]:
+        """Frames through ``pre`` and the network from ``state``; the outputs in L and the state after them."""
         frames = [pre(p, r, a) for p, r, a in zip(clouds, imu_rot, imu_acc, strict=True)]
-        out, _ = self.net(*stack_frames(frames))
-        return _to_lidar(out, frames, _ScaleTracker())
+        out, state = self.net(*stack_frames(frames), state)
+        return _to_lidar(out, frames, scale), state
