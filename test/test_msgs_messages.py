@@ -27,6 +27,8 @@ from lip_msgs_py import (
     pose_stamped_to_msg,
     skeleton_to_markers,
     stamp_to_ns,
+    tf_message,
+    transform_stamped_to_msg,
 )
 from lip_msgs_py.markers import ADD, LINE_LIST, SPHERE_LIST
 from lip_ros.core.skeleton import joint_state_names, load_skeleton
@@ -292,3 +294,22 @@ def test_diagnostic_level_is_validated(backend):
         diagnostic_status_to_msg(backend, 4, "x", "y")
     status = diagnostic_status_to_msg(backend, DiagnosticLevel.STALE, "x", "y")
     assert status.level in (3, b"\x03")  # rosbags: int, rclpy: one byte
+
+
+# --- /tf ---------------------------------------------------------------------
+
+
+def test_tf_message_of_the_pelvis_serialises():
+    """rclpy here has no tf2_msgs (pose_node skips /tf, tested over DDS); the rosbags Jazzy typestore has it."""
+    backend = RosbagsBackend()
+    q = random_quats(1)[0]
+    tf = tf_message(backend, [transform_stamped_to_msg(backend, STAMP, "os_lidar", "pelvis", [1.0, 2.0, 0.5], q)])
+    back = backend.deserialize(backend.serialize(tf, "tf2_msgs/msg/TFMessage"), "tf2_msgs/msg/TFMessage")
+    (t,) = back.transforms
+    assert stamp_to_ns(t.header.stamp) == STAMP and (t.header.frame_id, t.child_frame_id) == ("os_lidar", "pelvis")
+    np.testing.assert_allclose([t.transform.translation.x, t.transform.translation.y, t.transform.translation.z],
+                               [1.0, 2.0, 0.5])
+    r = t.transform.rotation
+    np.testing.assert_allclose([r.x, r.y, r.z, r.w], q)
+    with pytest.raises(MalformedMessageError):
+        transform_stamped_to_msg(backend, STAMP, "os_lidar", "pelvis", [np.nan, 0.0, 0.0], q)
