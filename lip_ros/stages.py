@@ -39,7 +39,7 @@ from lip_ros.core.skeleton import Skeleton, forward_kinematics, load_skeleton
 from lip_ros.nets.config import IMU_NAMES
 from lip_ros.nets.lip_model import LipModel
 
-__all__ = ["Outcome", "BoneFrame", "LipPose", "ImuStage", "PoseStage", "LATE_IMU_REASON"]
+__all__ = ["Outcome", "BoneFrame", "LipPose", "ImuStage", "PoseStage"]
 
 #: Why a frame gave up waiting for IMU data (more than ``max_pending`` frames behind it).
 LATE_IMU_REASON = "IMU data did not arrive in time"
@@ -301,23 +301,13 @@ class PoseStage:
     def estimate(self, stamp_ns: int, points: np.ndarray, bone_rot: np.ndarray, free_acc: np.ndarray
                  ) -> tuple[LipPose, float, float]:
         """The pose at ``stamp_ns``, and the seconds spent in the network and in the kinematics."""
-        start = time.perf_counter()
-        if self._last_ns is None or stamp_ns - self._last_ns > self.max_gap_ns:
-            self.model.reset()
-            self.sequences += 1
-        self._last_ns = stamp_ns
-        out = self.model.step(points, bone_rot, free_acc)
-        t_fk = time.perf_counter()
-        glob, pos = forward_kinematics(self.skeleton, out.local_rot, out.translation,
-                                       self.skeleton.offsets * out.body_scale)
-        pose = LipPose(stamp_ns, out.translation, out.local_rot, glob, pos, float(out.body_scale))
-        return pose, t_fk - start, time.perf_counter() - t_fk
+        return self.estimate_sequence([stamp_ns], [points], bone_rot[None], free_acc[None])[0]
 
     def estimate_sequence(self, stamps_ns: Sequence[int], points: Sequence[np.ndarray], bone_rot: np.ndarray,
                           free_acc: np.ndarray) -> list[tuple[LipPose, float, float]]:
-        """:meth:`estimate` of each frame in turn (the same poses up to float rounding, the same new sequences),
-        with one network forward per run of frames without a gap and the kinematics of all frames at once; the
-        seconds are each frame's share."""
+        """The poses of several frames in turn (as :meth:`estimate` of each, up to float rounding, with the same
+        new sequences), with one network forward per run of frames without a gap and the kinematics of all
+        frames at once; the seconds are each frame's share."""
         if not len(stamps_ns):
             return []
         start = time.perf_counter()
