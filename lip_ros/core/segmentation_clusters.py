@@ -94,8 +94,10 @@ def link_components(
         d = axis[head] - axis[tail]
         square += d * d
     close = square <= limit * limit
-    head, tail = head[close], tail[close]
-    graph = csr_matrix((np.ones(len(head), dtype=np.int8), (head, tail)), shape=(n, n))
+    head, tail = head[close], tail[close]  # head ascending (np.nonzero's order): CSR rows as they are
+    indptr = np.zeros(n + 1, dtype=np.int32)
+    np.cumsum(np.bincount(head, minlength=n), out=indptr[1:])
+    graph = csr_matrix((np.ones(len(head)), tail.astype(np.int32), indptr), shape=(n, n))
     k, labels = connected_components(graph, directed=False)
     return labels.astype(np.int64), int(k)
 
