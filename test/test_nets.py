@@ -142,23 +142,6 @@ def test_ablation_variants_stream_and_drop_what_they_ablate(variant):
     assert out["offset"].shape == (b, t, 3)
 
 
-@pytest.mark.parametrize("residual", [True, False])
-@pytest.mark.parametrize("features", [True, False])
-def test_joint_map_design_switches(residual, features):
-    """joint_map_residual: the joint map corrects the prior or replaces it; prior_features: widths agree."""
-    torch.manual_seed(4)
-    net = LipNet(LipConfig.tiny().with_(joint_map_residual=residual, prior_features=features))
-    b, t, n = 1, 3, LipConfig.tiny().num_points
-    points, frame, imu = torch.randn(b, t, n, 3), torch.ones(b, t, 2), torch.randn(b, t, 48)
-    with torch.no_grad():
-        net.joint_map.out.weight.zero_()
-        net.joint_map.out.bias.zero_()
-        out, _ = net(points, frame, imu)
-    expected = out["joints_prior"] if residual else torch.zeros_like(out["joints_prior"])
-    torch.testing.assert_close(out["fine_joints"], expected)
-    assert not torch.equal(out["joints_prior"], torch.zeros_like(out["joints_prior"]))
-
-
 def test_unknown_variant_is_an_error_and_lip_eval_knows_every_ablation():
     with pytest.raises(ValueError, match="variant"):
         LipConfig(variant="lidar+12imus")

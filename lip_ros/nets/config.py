@@ -33,10 +33,6 @@ class LipConfig:
     ``lambdas`` weigh the joint-prior, orientation-prior, refined-joint,
     rotation and forward-kinematics losses (equations 3 and 7).
     ``variant`` is the method (``full``) or one of its ablations (:data:`VARIANTS`).
-    ``joint_map_residual``: the joint-map estimator outputs a correction added
-    to the prior joints (else the joints themselves, as the paper);
-    ``prior_features``: the second stage also gets the prior encoder's temporal
-    features beside the explicit prior (docs/training.md, "Design choices").
     """
 
     num_points: int = 256
@@ -50,8 +46,6 @@ class LipConfig:
     bidirectional: bool = False
     lambdas: tuple[float, float, float, float, float] = (1.0, 1.0, 0.2, 0.7, 0.7)
     variant: str = "full"
-    joint_map_residual: bool = True
-    prior_features: bool = False
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:

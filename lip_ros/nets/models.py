@@ -120,7 +120,7 @@ class LipNet(nn.Module):
         else:
             self.prior_decoder = _mlp([c.prior_hidden, c.decoder_hidden, c.decoder_hidden, _JOINT_FEATURES + 6],
                                       last_relu=False)
-            x3 = IMU_FEATURES + _JOINT_FEATURES + 6 + (c.prior_hidden if c.prior_features else 0)
+            x3 = IMU_FEATURES + _JOINT_FEATURES + 6
         if c.variant == "no_joint_map":  # "w/o JE": rotations from the prior and the IMUs, no refined joints
             self.joint_map = None
             self.body_pose = Estimator(x3, _ROT_FEATURES, c.estimator_hidden, c.bidirectional)
@@ -157,19 +157,19 @@ class LipNet(nn.Module):
         out: dict[str, torch.Tensor] = {}
         if self.prior_decoder is None:
             x3 = torch.cat([imu, h], dim=-1)
-            prior_joints = 0.0
+            base = 0.0
         else:
             prior = self.prior_decoder(h)
-            x3 = torch.cat([imu, prior, h] if self.config.prior_features else [imu, prior], dim=-1)
-            prior_joints = prior[..., :_JOINT_FEATURES]
-            out["joints_prior"] = prior_joints.reshape(*lead, NUM_JOINTS, 3)
+            x3 = torch.cat([imu, prior], dim=-1)
+            base = prior[..., :_JOINT_FEATURES]
+            out["joints_prior"] = base.reshape(*lead, NUM_JOINTS, 3)
             out["root6d_prior"] = prior[..., _JOINT_FEATURES:]
         if self.joint_map is None:
-            joints, s_jm = prior_joints, [None] * 3
+            joints, s_jm = base, [None] * 3
             rot6d, s_bp = self.body_pose(x3, state[4:7])
         else:
             delta, s_jm = self.joint_map(x3, state[1:4])
-            joints = prior_joints + delta if self.config.joint_map_residual else delta
+            joints = base + delta
             out["fine_joints"] = joints.reshape(*lead, NUM_JOINTS, 3)
             rot6d, s_bp = self.body_pose(torch.cat([x3, joints], dim=-1), state[4:7])
         ht, s_t = self.trans_encoder(points, frame, state[7])
