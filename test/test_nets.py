@@ -200,7 +200,7 @@ def test_config_roundtrip(tmp_path):
 
 def test_paper_config_sizes():
     config = LipConfig.paper()
-    assert config.point_widths[-1] == 1024 and config.bidirectional
+    assert config.point_widths[-1] == 1024 and config.bidirectional and config.lambdas == (1.0, 1.0, 0.2, 0.7, 0.7)
     def size(c: LipConfig) -> int:
         return sum(p.numel() for p in LipNet(c).parameters())
 
