@@ -9,7 +9,6 @@ The shipped weights (docs/training.md)::
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import torch
 from lip_ros.nets.config import VARIANTS, LipConfig
 from lip_ros.nets.lip_model import LipModel
 from lip_ros.train.dataset import blank_frames, prepare
-from lip_ros.train.rigdata import TRAIN_SEEDS, VAL_SEEDS, ensure_cached, load_sequence, spec_for_seed
+from lip_ros.train.rigdata import DEFAULT_DATA_DIR, TRAIN_SEEDS, VAL_SEEDS, ensure_cached, load_sequence, spec_for_seed
 from lip_ros.train.trainer import TrainOptions, train
 
 __all__ = ["main", "build_parser"]
@@ -30,7 +29,7 @@ _CONFIGS = {"small": LipConfig, "paper": LipConfig.paper, "tiny": LipConfig.tiny
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``lip_train``."""
     p = argparse.ArgumentParser(prog="lip_train", description=__doc__.split("\n")[0])
-    p.add_argument("--data-dir", type=Path, default=Path(os.path.expanduser("~/.cache/lip_ros/rigdata")),
+    p.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR,
                    help="cache of simulated sequences (.npz)")
     p.add_argument("--out", type=Path, required=True, help="run directory: checkpoint.pt, best.pt/.json")
     p.add_argument("--config", choices=sorted(_CONFIGS), default="small", help="network sizes")

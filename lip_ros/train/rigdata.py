@@ -56,12 +56,15 @@ __all__ = [
     "generate",
     "load_sequence",
     "ensure_cached",
+    "DEFAULT_DATA_DIR",
 ]
 
 TRAIN_SEEDS = range(500_000)
 VAL_SEEDS = range(500_000, 1_000_000)
 #: Seeds from here on are never used for training or validation.
 EVAL_SEED_MIN = 1_000_000
+#: Where ``lip_train`` caches simulated sequences unless told otherwise.
+DEFAULT_DATA_DIR = Path.home() / ".cache" / "lip_ros" / "rigdata"
 _CACHE_VERSION = 1
 
 
