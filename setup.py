@@ -23,6 +23,7 @@ CORE = [
     "mcap>=1.2,<2",
     "zstandard>=0.22,<1",  # also an mcap dependency; lip_ros.bagstream decompresses chunks with it
     "fpsample>=1.0,<2",
+    "isal>=1.7,<2",  # lip_ros.bagstream checks MCAP chunk CRCs with its crc32
     "matplotlib>=3.8,<4",
 ]
 TEST = [

@@ -29,7 +29,6 @@ import mmap
 import queue
 import struct
 import threading
-import zlib
 from collections.abc import Iterable, Iterator
 from contextlib import suppress
 from dataclasses import dataclass
@@ -39,6 +38,7 @@ from pathlib import Path, PurePath
 import numpy as np
 import yaml
 import zstandard
+from isal.isal_zlib import crc32  # zlib's crc32, 10x faster (ISA-L)
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
@@ -193,7 +193,7 @@ def _read_chunk(record: memoryview, file: _File, offset: int, buf: bytearray, un
                 np.copyto(np.frombuffer(out, np.uint8, size), np.frombuffer(src, np.uint8))
         if got != size:
             raise BagError(f"{where}: {got} bytes of records, not {size}")
-        if crc and zlib.crc32(out[:size]) != crc:
+        if crc and crc32(out[:size]) != crc:
             raise BagError(f"{where}: fails its checksum")
     return buf, _messages(buf, size, file, offset)
 

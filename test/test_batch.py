@@ -5,16 +5,19 @@ bag (512 columns, 13 s) and on a copy with odd messages; and its parts match wha
 from __future__ import annotations
 
 import dataclasses
+import struct
+import zlib
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
 from helpers import DEMO_BAG
+from mcap.reader import make_reader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from lip_msgs_py import cloud_to_array, msg_to_imu, read_header
-from lip_ros.bagio import bag_span, bag_topics, jazzy_typestore, mcap_writer, read_raw
+from lip_ros.bagio import BagError, bag_span, bag_topics, jazzy_typestore, mcap_writer, read_raw
 from lip_ros.bagstream import stream_raw
 from lip_ros.batch import DEFAULT_IMU_TOPICS, DEFAULT_LIDAR_TOPIC, POSE_BATCH, process_bag_batch, replay_bag
 from lip_ros.cdr import cloud_msg, imu_samples
@@ -148,6 +151,30 @@ def test_stream_raw_equals_read_raw(tmp_path, storage):
         # arrays made from the views were never overwritten by later chunks
         assert all((t, n, ty, a.tobytes()) == (w.topic, w.log_ns, w.msgtype, w.data)
                    for (t, n, ty, a), w in zip(kept, want, strict=True))
+
+
+def test_stream_raw_checks_chunk_crcs(tmp_path):
+    """rosbags writes uncompressed chunks without a CRC (0); with the right one set the bag reads, with one
+    byte of the records flipped it fails."""
+    bag = tmp_path / "bag"
+    _write_raw(bag, list(read_raw(DEMO_BAG, TOPICS[1:], start_ns=bag_span(DEMO_BAG)[1] - 1_000_000_000)),
+               StoragePlugin.MCAP)
+    path = next(bag.glob("*.mcap"))
+    with path.open("rb") as f:
+        chunk = make_reader(f).get_summary().chunk_indexes[-1]
+    assert chunk.compression == ""
+    data = bytearray(path.read_bytes())
+    end = chunk.chunk_start_offset + chunk.chunk_length
+    crc_at = chunk.chunk_start_offset + 9 + 24  # opcode and length, then start and end time, uncompressed size
+    assert struct.unpack_from("<I", data, crc_at) == (0,)
+    struct.pack_into("<I", data, crc_at, zlib.crc32(data[end - chunk.compressed_size : end]))
+    path.write_bytes(bytes(data))
+    want = [(m.topic, m.log_ns, bytes(m.data)) for m in read_raw(bag, TOPICS[1:])]
+    assert [(m.topic, m.log_ns, bytes(m.data)) for m in stream_raw(bag, TOPICS[1:])] == want
+    data[end - 8] ^= 0xFF  # inside the last message's data
+    path.write_bytes(bytes(data))
+    with pytest.raises(BagError, match="fails its checksum"):
+        list(stream_raw(bag, TOPICS[1:]))
 
 
 def test_cdr_decoders_match_rosbags_and_lip_msgs_py():
