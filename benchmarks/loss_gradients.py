@@ -13,7 +13,6 @@ Run: ``python benchmarks/loss_gradients.py /tmp/ablation/full/best``.
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +23,7 @@ from lip_ros.core.torch_kinematics import SkeletonTensors
 from lip_ros.nets.lip_model import LipModel
 from lip_ros.nets.losses import LOSS_NAMES, lip_losses
 from lip_ros.train.dataset import blank_frames, prepare
-from lip_ros.train.rigdata import TRAIN_SEEDS, ensure_cached, load_sequence, spec_for_seed
+from lip_ros.train.rigdata import DEFAULT_DATA_DIR, TRAIN_SEEDS, ensure_cached, load_sequence, spec_for_seed
 from lip_ros.train.trainer import WindowSampler
 
 _POSE_TERMS = LOSS_NAMES[:5]
@@ -41,7 +40,7 @@ def main() -> None:
     p.add_argument("--lambdas", type=float, nargs=5, help="weights of the five pose terms (default: the weights')")
     p.add_argument("--seqs", type=int, default=40, help="training sequences to sample from")
     p.add_argument("--batches", type=int, default=4)
-    p.add_argument("--data-dir", type=Path, default=Path(os.path.expanduser("~/.cache/lip_ros/rigdata")))
+    p.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR, help="lip_train's sequence cache")
     args = p.parse_args()
     torch.set_num_threads(1)
     net = LipModel.load(args.weights).net.float().train()
