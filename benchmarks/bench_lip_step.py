@@ -43,7 +43,8 @@ def _sequences(args: argparse.Namespace) -> Iterator[tuple[str, RigSequence]]:
         return
     for d in args.distances:
         for i in range(args.seeds):
-            yield f"{d:5.1f} m seed {i}", make_sequence(evaluation_spec(EVAL_SEED_MIN + 1000 * int(d) + i, d, args.seconds))
+            spec = evaluation_spec(EVAL_SEED_MIN + 1000 * int(d) + i, d, args.seconds)
+            yield f"{d:5.1f} m seed {i}", make_sequence(spec)
 
 
 def main() -> None:

@@ -29,8 +29,7 @@ _CONFIGS = {"small": LipConfig, "paper": LipConfig.paper, "tiny": LipConfig.tiny
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``lip_train``."""
     p = argparse.ArgumentParser(prog="lip_train", description=__doc__.split("\n")[0])
-    p.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR,
-                   help="cache of simulated sequences (.npz)")
+    p.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR, help="cache of simulated sequences (.npz)")
     p.add_argument("--out", type=Path, required=True, help="run directory: checkpoint.pt, best.pt/.json")
     p.add_argument("--config", choices=sorted(_CONFIGS), default="small", help="network sizes")
     p.add_argument("--config-json", type=Path, help="a LipConfig JSON (overrides --config)")
