@@ -1,6 +1,6 @@
 # lip_ros: set-up, demo and tests on a Debian machine with Python 3.11.
 #   make demo   create/reuse .venv, install, run the main job on the bundled demo bag
-#   make test   create/reuse .venv, install, run the whole test suite
+#   make test   create/reuse .venv, install, lint (ruff), run the whole test suite
 
 PYTHON ?= python3
 VENV ?= .venv
@@ -17,7 +17,7 @@ export ROS_DOMAIN_ID
 
 venv: $(INSTALLED)
 
-$(INSTALLED): setup.py setup.cfg package.xml
+$(INSTALLED): setup.py setup.cfg pyproject.toml package.xml
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), "Python >= 3.10 needed"'
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV) || { echo "python venv failed: apt-get install python3-venv"; exit 1; }
 	$(PY) -m pip install --quiet -e ".[pypi,test]"
@@ -34,6 +34,7 @@ demo-bag: $(INSTALLED)
 		--azimuth-window 150 210 --out bags/demo_walk
 
 test: $(INSTALLED)
+	$(VENV)/bin/ruff check .
 	$(PY) -m pytest test -q -p no:cacheprovider
 
 bench: $(INSTALLED)

@@ -28,6 +28,7 @@ CORE = [
 ]
 TEST = [
     "pytest>=8,<10",
+    "ruff==0.17.5",  # make test lints with it (pyproject.toml [tool.ruff])
     "colcon-core==0.21.3",
     "colcon-ros==0.5.0",
     "ros-jazzy-ament-package==0.16.4",
@@ -55,12 +56,12 @@ setup(
     entry_points={
         "console_scripts": [
             "fusion_node = lip_ros.nodes.fusion_node:main",
-            "segmentation_node = lip_ros.nodes.segmentation_node:main",
-            "calibration_node = lip_ros.nodes.calibration_node:main",
-            "pose_node = lip_ros.nodes.pose_node:main",
-            "lip_rig = lip_ros.rig.cli:main",
-            "lip_train = lip_ros.train.cli:main",
-            "lip_eval = lip_ros.evaluation.cli:main",
+            "segmentation_node = lip_ros.nodes.lip.segmentation:main",
+            "calibration_node = lip_ros.nodes.lip.calibration:main",
+            "pose_node = lip_ros.nodes.lip.pose:main",
+            "lip_rig = lip_ros.tools.rig:main",
+            "lip_train = lip_ros.tools.lip_train:main",
+            "lip_eval = lip_ros.tools.lip_eval:main",
             "lip_bag_play = lip_ros.tools.bag_play:main",
             "lip_bag_record = lip_ros.tools.bag_record:main",
             "lip_process_bag = lip_ros.tools.process_bag:main",

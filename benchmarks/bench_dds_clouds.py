@@ -148,7 +148,7 @@ def main() -> None:
         return _publisher(args)
 
     from lip_ros.middleware import PROFILE_FILE
-    from lip_ros.params import params_path
+    from lip_ros.resources import params_path
 
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))

@@ -66,10 +66,9 @@ from rosgraph_msgs.msg import Clock
 
 from lip_msgs_py import Diagnostic, msg_to_diagnostics, read_header, stamp_to_ns
 from lip_ros.bagio import bag_span, bag_topics, read_messages
+from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
 from lip_ros.middleware import use_lip_dds_profile
-from lip_ros.outputs import LIP_TOPICS
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
-from lip_ros.tools.process_bag import INPUTS
 from lip_ros.tools.ros_cli import Progress, installed_script
 
 REPO = Path(__file__).resolve().parents[1]
@@ -235,7 +234,7 @@ class GraphRun:
     @property
     def frames_in(self) -> int:
         """LiDAR frames in the bag."""
-        return self.sent["/ouster/points"]
+        return self.sent[LIDAR_TOPIC]
 
     def e2e_stats(self, warmup_s: float | None = None) -> dict[str, float]:
         """p50, p90, p99, max and count of the end-to-end latencies; with ``warmup_s``, of the poses from that long
@@ -291,7 +290,7 @@ class Watch:
 
 def cloud_times(bag: Path) -> tuple[np.ndarray, np.ndarray]:
     """Header stamps and log times (ns) of the bag's LiDAR clouds, in log order."""
-    rows = [(read_header(m.msg)[0], m.log_ns) for m in read_messages(bag, ["/ouster/points"])]
+    rows = [(read_header(m.msg)[0], m.log_ns) for m in read_messages(bag, [LIDAR_TOPIC])]
     stamps, logs = np.array(rows, dtype=np.int64).T
     return stamps, logs
 
@@ -322,7 +321,7 @@ def end_to_end(watch: Watch, stamps: np.ndarray, logs: np.ndarray, first_ns: int
 def run_graph(bag: Path, label: str, commands: list[list[str]], rate: float, work: Path) -> GraphRun:
     """Play ``bag`` into the graph ``commands`` and measure it (the graph is stopped at the end)."""
     first_ns, last_ns = bag_span(bag)
-    sent = {t: bag_topics(bag)[t].count for t in INPUTS}
+    sent = {t: bag_topics(bag)[t].count for t in INPUT_TOPICS}
     progress(f"{label}: reading the cloud stamps of {bag}")
     stamps, logs = cloud_times(bag)
     load0 = os.getloadavg()[0]
@@ -338,7 +337,7 @@ def run_graph(bag: Path, label: str, commands: list[list[str]], rate: float, wor
         watch = Watch(usage)
         player_log = work / f"{label}_lip_bag_play.log"
         player = start_process([installed_script("lip_bag_play"), str(bag), "--clock", "--wait-for-subscribers",
-                                "--rate", str(rate), "--topics", *INPUTS], player_log)
+                                "--rate", str(rate), "--topics", *INPUT_TOPICS], player_log)
         procs.append(player)
         usage["lip_bag_play"] = ProcUsage("lip_bag_play", player.pid)
 
@@ -375,7 +374,7 @@ def run_graph(bag: Path, label: str, commands: list[list[str]], rate: float, wor
     lag = re.search(r"max lag ([\d.]+) ms", player_log.read_text())
     return GraphRun(
         label=label, bag=str(bag), bag_s=(last_ns - first_ns) / 1e9, rate=rate, commands=commands, sent=sent,
-        received=inputs_received(watch.statuses, INPUTS), frames=frames, graph_latency_ms=graph_latency,
+        received=inputs_received(watch.statuses, INPUT_TOPICS), frames=frames, graph_latency_ms=graph_latency,
         e2e_ms=end_to_end(watch, stamps, logs, first_ns, rate),
         usage={n: u.summary(start, end) for n, u in usage.items()},
         cpu_timeline={n: tuple(a.tolist() for a in u.cpu_timeline(start, end)) for n, u in usage.items()},
@@ -406,9 +405,9 @@ def print_graph_table(runs: list[GraphRun]) -> None:
     """Rows are measures, columns are runs."""
     rows: list[tuple[str, list[str]]] = [
         ("bag (s) at rate", [f"{r.bag_s:.1f} at {r.rate:g}x" for r in runs]),
-        ("clouds received / in bag", [f"{r.received['/ouster/points']} / {r.frames_in}" for r in runs]),
-        ("IMU samples received / in bag", [f"{sum(v for t, v in r.received.items() if t != '/ouster/points')} / "
-                                           f"{sum(v for t, v in r.sent.items() if t != '/ouster/points')}"
+        ("clouds received / in bag", [f"{r.received[LIDAR_TOPIC]} / {r.frames_in}" for r in runs]),
+        ("IMU samples received / in bag", [f"{sum(v for t, v in r.received.items() if t != LIDAR_TOPIC)} / "
+                                           f"{sum(v for t, v in r.sent.items() if t != LIDAR_TOPIC)}"
                                            for r in runs]),
         ("frames: pose", [str(r.frames.get("pose", 0)) if r.frames else "n/a" for r in runs]),
         ("frames: calibrating", [str(r.frames.get("calibrating", 0)) if r.frames else "n/a" for r in runs]),
@@ -501,8 +500,8 @@ def run_process_bag(bag: Path, rate: float, work: Path) -> ProcessBagRun:
                if line.startswith(("frames in", "latency", "accuracy", "wall time"))]
     statuses = {s.name: s for m in read_messages(out, ["/diagnostics"]) for s in msg_to_diagnostics(m.msg).statuses}
     wall = re.search(r"wall time .*?: ([\d.]+) s for ([\d.]+) s of bag", proc.stdout)
-    return ProcessBagRun(rate, summary, {t: bag_topics(bag)[t].count for t in INPUTS},
-                         inputs_received(statuses, INPUTS), float(wall.group(1)) if wall else None,
+    return ProcessBagRun(rate, summary, {t: bag_topics(bag)[t].count for t in INPUT_TOPICS},
+                         inputs_received(statuses, INPUT_TOPICS), float(wall.group(1)) if wall else None,
                          float(wall.group(2)) / float(wall.group(1)) if wall else None,
                          (load0, os.getloadavg()[0]))
 

@@ -3,7 +3,7 @@
 For each distance a held-out sequence (seed >= 1_000_000, with the calibration
 poses at its start) is built with the training code's ``make_sequence``; the
 model runs over it frame by frame (``step``), timed, and the errors are
-reported (``lip_ros.train.evaluate.score``). ``--weights`` picks other weights
+reported (``lip_ros.lip.train.evaluate.score``). ``--weights`` picks other weights
 (a bidirectional model is run offline with ``run``, not timed per frame);
 ``--validation N`` scores ``lip_train``'s first N validation sequences instead.
 Run: ``python benchmarks/bench_lip_step.py [--distances 5 10 20] [--validation 24] [--weights PATH]``.
@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lip_ros.nets.lip_model import LipModel, LipOutput
-from lip_ros.train.evaluate import run_sequence, score
-from lip_ros.train.rigdata import (
+from lip_ros.lip.nets.lip_model import LipModel, LipOutput
+from lip_ros.lip.train.evaluate import run_sequence, score
+from lip_ros.lip.train.rigdata import (
     DEFAULT_DATA_DIR,
     EVAL_SEED_MIN,
     VAL_SEEDS,

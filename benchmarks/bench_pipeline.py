@@ -5,7 +5,7 @@ plus the IMU samples received so far to joints and translation, i.e.
 ``LipPipeline.add_cloud`` and the ``poll`` right after it, for the frames after
 the calibration; median and p99 (targets 20 / 40 ms), with the median of each
 stage (``FrameResult.timing``) and the PointCloud2 decoding
-(``cloud_to_array``) beside it. Batch: ``lip_ros.batch.process_bag_batch`` (the fast
+(``cloud_to_array``) beside it. Batch: ``lip_ros.lip.batch.process_bag_batch`` (the fast
 path: read-ahead thread, CDR decoding without message objects, batched
 network) over the same bag, reading and decompressing included, as a multiple
 of real time (target 20x), beside ``replay_bag`` (the streaming reference) and
@@ -34,15 +34,16 @@ import torch
 from lip_msgs_py import MalformedMessageError, cloud_to_array, msg_to_imu, read_header
 from lip_ros.bagio import bag_span, read_messages
 from lip_ros.bagstream import stream_raw
-from lip_ros.batch import DEFAULT_IMU_TOPICS, DEFAULT_LIDAR_TOPIC, POSE_BATCH, process_bag_batch, replay_bag
-from lip_ros.nets.config import LipConfig
-from lip_ros.nets.lip_model import SHIPPED_WEIGHTS, LipModel
-from lip_ros.nets.models import LipNet
-from lip_ros.params import params_dir
-from lip_ros.pipeline import FrameResult, LipPipeline, Outcome, StageTimes
+from lip_ros.lip.batch import POSE_BATCH, process_bag_batch, replay_bag
+from lip_ros.lip.nets.config import LipConfig
+from lip_ros.lip.nets.lip_model import SHIPPED_WEIGHTS, LipModel
+from lip_ros.lip.nets.models import LipNet
+from lip_ros.lip.pipeline import FrameResult, LipPipeline, Outcome, StageTimes
+from lip_ros.lip.sensors import IMU_TOPICS, LIDAR_TOPIC
+from lip_ros.lip.train.rigdata import EVAL_SEED_MIN
+from lip_ros.resources import params_dir
 from lip_ros.rig.bag import write_capture_bag
 from lip_ros.rig.capture import CaptureConfig, CaptureSession
-from lip_ros.train.rigdata import EVAL_SEED_MIN
 
 
 def _model(weights: Path | None) -> tuple[LipModel, str]:
@@ -56,10 +57,10 @@ def _per_frame(model: LipModel, bag: Path) -> tuple[np.ndarray, np.ndarray, list
     """Per post-calibration frame: add_cloud + poll time (s), decode time (s), stage times; frames that came
     out of a later poll (not timed)."""
     pipeline = LipPipeline(model)
-    imu_of_topic = {t: n for n, t in DEFAULT_IMU_TOPICS.items()}
+    imu_of_topic = {t: n for n, t in IMU_TOPICS.items()}
     total, decode, stages, late = [], [], [], 0
-    for m in read_messages(bag, [DEFAULT_LIDAR_TOPIC, *imu_of_topic]):
-        if m.topic != DEFAULT_LIDAR_TOPIC:
+    for m in read_messages(bag, [LIDAR_TOPIC, *imu_of_topic]):
+        if m.topic != LIDAR_TOPIC:
             try:
                 pipeline.add_imu(imu_of_topic[m.topic], msg_to_imu(m.msg))
             except MalformedMessageError:
@@ -134,7 +135,7 @@ def main() -> None:
                 runs[fast].append(_batch(model, bag, fast))
         fast, streaming = (sorted(runs[k], key=lambda r: r.wall)[len(runs[k]) // 2] for k in (True, False))
         t0 = time.perf_counter()
-        for _ in stream_raw(bag, [DEFAULT_LIDAR_TOPIC, *DEFAULT_IMU_TOPICS.values()]):
+        for _ in stream_raw(bag, [LIDAR_TOPIC, *IMU_TOPICS.values()]):
             pass
         reading = time.perf_counter() - t0
         stage_s = {k: sum(getattr(r.timing, k) for r in fast.results) for k in StageTimes.__dataclass_fields__}

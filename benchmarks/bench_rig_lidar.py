@@ -11,9 +11,9 @@ import time
 
 import numpy as np
 
+from lip_ros.core.body import BodyModel
 from lip_ros.core.rotations import rot_x
 from lip_ros.core.skeleton import forward_kinematics, load_skeleton
-from lip_ros.rig.body import BodyModel
 from lip_ros.rig.lidar import Actor, OusterModel
 from lip_ros.rig.scene import KeepOut, Scene
 

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from lip_ros.core.segmentation import PerformerSegmenter
+from lip_ros.lip.segmentation import PerformerSegmenter
 from lip_ros.rig.capture import CaptureConfig, CaptureSession
 
 DISTANCES = (4.0, 8.0, 12.0, 20.0)

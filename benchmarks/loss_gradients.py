@@ -20,11 +20,11 @@ import torch
 
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_kinematics import SkeletonTensors
-from lip_ros.nets.lip_model import LipModel
-from lip_ros.nets.losses import LOSS_NAMES, lip_losses
-from lip_ros.train.dataset import blank_frames, prepare
-from lip_ros.train.rigdata import DEFAULT_DATA_DIR, TRAIN_SEEDS, ensure_cached, load_sequence, spec_for_seed
-from lip_ros.train.trainer import WindowSampler
+from lip_ros.lip.nets.lip_model import LipModel
+from lip_ros.lip.nets.losses import LOSS_NAMES, lip_losses
+from lip_ros.lip.train.dataset import blank_frames, prepare
+from lip_ros.lip.train.rigdata import DEFAULT_DATA_DIR, TRAIN_SEEDS, ensure_cached, load_sequence, spec_for_seed
+from lip_ros.lip.train.trainer import WindowSampler
 
 _POSE_TERMS = LOSS_NAMES[:5]
 

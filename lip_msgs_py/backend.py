@@ -13,7 +13,7 @@ from __future__ import annotations
 import array
 import importlib
 from abc import ABC, abstractmethod
-from functools import lru_cache
+from functools import cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -65,7 +65,7 @@ class Backend(ABC):
         return self.msg("std_msgs/msg/Header", stamp=self.time(stamp_ns), frame_id=str(frame_id))
 
 
-@lru_cache(maxsize=None)
+@cache
 def rclpy_message_class(type_name: str) -> type:
     """The rclpy class of ``type_name`` ('pkg/msg/Name'); KeyError if its Python package is not installed."""
     try:

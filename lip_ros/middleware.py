@@ -17,7 +17,7 @@ import os
 from collections.abc import MutableMapping
 from pathlib import Path
 
-from lip_ros.params import params_path
+from lip_ros.resources import params_path
 
 __all__ = ["PROFILE_ENV", "PROFILE_FILE", "use_lip_dds_profile"]
 

@@ -22,7 +22,7 @@ from lip_msgs_py import (
 from lip_ros.core.rotations import matrix_to_quat
 from lip_ros.core.skeleton import Skeleton, joint_state_names, local_rotations_to_joint_angles
 
-__all__ = ["PoseTopics", "LIP_TOPICS", "GT_TOPICS", "pose_messages"]
+__all__ = ["PoseTopics", "GT_TOPICS", "pose_messages"]
 
 
 @dataclass(frozen=True)
@@ -35,7 +35,6 @@ class PoseTopics:
     skeleton: str | None = None
 
 
-LIP_TOPICS = PoseTopics("/lip/joint_states", "/lip/root_pose", "/lip/joint_poses", "/lip/skeleton")
 GT_TOPICS = PoseTopics("/gt/joint_states", "/gt/root_pose", "/gt/joint_poses")
 
 

@@ -10,8 +10,11 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.ros  # DDS traffic or subprocesses
+
 REPO = Path(__file__).resolve().parents[1]
-EXECUTABLES = ["fusion_node", "segmentation_node", "calibration_node", "pose_node", "lip_rig", "lip_bag_play", "lip_bag_record", "lip_process_bag"]
+EXECUTABLES = ["fusion_node", "segmentation_node", "calibration_node", "pose_node", "lip_rig", "lip_bag_play",
+               "lip_bag_record", "lip_process_bag"]
 
 
 def _ros2_run_path(prefix_path: str, package: str, executable: str) -> Path:
@@ -72,7 +75,7 @@ def test_ros2_run_resolves_and_starts(colcon_install: Path, executable: str) -> 
 
 
 def test_installed_package_reads_its_share_directory(colcon_install: Path) -> None:
-    code = "import lip_ros, lip_ros.params as p; print(lip_ros.__file__); print(p.params_dir())"
+    code = "import lip_ros, lip_ros.resources as p; print(lip_ros.__file__); print(p.params_dir())"
     proc = subprocess.run([sys.executable, "-c", code], env=_env(colcon_install), capture_output=True, text=True,
                           cwd="/", timeout=60)
     assert proc.returncode == 0, proc.stderr

@@ -5,7 +5,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 
 from lip_ros.middleware import PROFILE_ENV, PROFILE_FILE, use_lip_dds_profile
-from lip_ros.params import params_path
+from lip_ros.resources import params_path
 
 NS = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 

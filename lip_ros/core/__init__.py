@@ -1,1 +1,3 @@
-"""ROS-free core of lip_ros: math, skeleton, and (later) segmentation, sync, calibration, networks."""
+"""The shared, ROS-free base of both branches: rotations, frames, the contract skeleton and its kinematics
+(numpy and torch), the URDF, the capsule body surface, IMU synchronisation, exact-stamp joins, sensor health
+bookkeeping and the accuracy metrics. It imports neither branch."""

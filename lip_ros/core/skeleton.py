@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 
 from lip_ros.core.rotations import axis_angle_to_matrix, euler_zyx_to_matrix, matrix_to_euler_zyx
-from lip_ros.params import params_path
+from lip_ros.resources import params_path
 
 __all__ = [
     "Skeleton",
@@ -65,7 +65,7 @@ class Skeleton:
             rot[self.index(joint)] = axis_angle_to_matrix(aa)
         return rot
 
-    def scaled(self, scale: float) -> "Skeleton":
+    def scaled(self, scale: float) -> Skeleton:
         """The same skeleton with bone lengths and pelvis height multiplied by ``scale``."""
         return Skeleton(
             self.names,

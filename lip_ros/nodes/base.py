@@ -1,10 +1,11 @@
-"""What every LIP node shares: validated parameters, monitored inputs, frame accounting, diagnostics, ``main``.
+"""What every node of lip_ros shares: validated parameters, monitored inputs, frame accounting, diagnostics,
+``main``.
 
 Parameters: each node lists its parameters (:class:`Param`: description and
-check); their defaults come from the shipped ``params/lip.yaml``
-(``ros__parameters`` of the node's section and of ``/**``), the single source
-of defaults. ``--ros-args --params-file FILE`` and ``-p name:=value`` override
-them; every value is checked at start-up, and a bad or unknown one stops the
+check); their defaults come from its branch's shipped parameter file
+(``PARAMS_FILE``, e.g. ``params/lip.yaml``: ``ros__parameters`` of the node's
+section and of ``/**``), the single source of defaults. ``--ros-args --params-file FILE`` and
+``-p name:=value`` override them; every value is checked at start-up, and a bad or unknown one stops the
 executable with one clear line and exit status 2.
 
 Diagnostics (``/diagnostics``, every ``diagnostics_period_s`` of steady time):
@@ -47,14 +48,10 @@ from lip_msgs_py import (
 )
 from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import use_lip_dds_profile
-from lip_ros.params import params_path
+from lip_ros.resources import params_path
 
-__all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "LipNode", "LatencyWindow", "RELIABLE",
-           "BETWEEN_NODES", "IMU_INPUT",
-           "node_defaults", "check_params_files", "run_nodes", "PARAMS_FILE", "FrameArrivals"]
-
-#: The shipped parameter file: every node's parameters and their defaults.
-PARAMS_FILE = "lip.yaml"
+__all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "GraphNode", "LatencyWindow", "RELIABLE",
+           "BETWEEN_NODES", "IMU_INPUT", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals"]
 
 #: QoS of the graph's outputs.
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -86,9 +83,9 @@ def positive(value: Any) -> str | None:
     return None if value > 0 else f"must be > 0, got {value}"
 
 
-def node_defaults(node_name: str) -> dict[str, Any]:
-    """The shipped defaults of a node: ``/**`` then the node's own section of ``params/lip.yaml``."""
-    doc = yaml.safe_load(params_path(PARAMS_FILE).read_text(encoding="utf-8")) or {}
+def node_defaults(params_file: str, node_name: str) -> dict[str, Any]:
+    """The shipped defaults of a node: ``/**`` then the node's own section of ``params/<params_file>``."""
+    doc = yaml.safe_load(params_path(params_file).read_text(encoding="utf-8")) or {}
     out: dict[str, Any] = {}
     for section in ("/**", node_name):
         out.update((doc.get(section) or {}).get("ros__parameters") or {})
@@ -170,10 +167,12 @@ class FrameArrivals:
             return self._t.pop(pose_stamp_ns, None)
 
 
-class LipNode(Node):
-    """A node of the LIP graph: subclasses set ``NAME`` and ``PARAMS`` and override :meth:`frame_status`."""
+class GraphNode(Node):
+    """A node of a capture graph: subclasses set ``NAME``, ``PARAMS_FILE`` (their branch's file in ``params/``)
+    and ``PARAMS``, and override :meth:`frame_status`."""
 
     NAME = ""
+    PARAMS_FILE = ""
 
     #: Parameters every node has.
     COMMON_PARAMS = {
@@ -202,11 +201,11 @@ class LipNode(Node):
         return set(cls.COMMON_PARAMS) | set(cls.PARAMS)
 
     def _declare_parameters(self) -> dict[str, Any]:
-        defaults = node_defaults(self.NAME)
+        defaults = node_defaults(self.PARAMS_FILE, self.NAME)
         specs = {**self.COMMON_PARAMS, **self.PARAMS}
         missing = set(specs) - set(defaults)
         if missing:
-            raise ParameterError(f"{params_path(PARAMS_FILE)} has no default for {', '.join(sorted(missing))}")
+            raise ParameterError(f"{params_path(self.PARAMS_FILE)} has no default for {', '.join(sorted(missing))}")
         values, problems = {}, []
         for name, spec in specs.items():
             try:
@@ -309,15 +308,15 @@ def _spin_each(nodes: Sequence[Node]) -> list[BaseException]:
     return errors
 
 
-def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], LipNode]],
-              classes: Sequence[type[LipNode]], argv: list[str] | None = None) -> int:
+def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], GraphNode]],
+              classes: Sequence[type[GraphNode]], argv: list[str] | None = None) -> int:
     """``main`` of an executable: parse, check parameter files, create the nodes and spin them, each on its own
     thread; parameter and topic type errors end it with one line on stderr and exit status 2.
 
     One single-threaded executor per node (its callbacks one at a time, the
     nodes in parallel) rather than rclpy's ``MultiThreadedExecutor``, which
     measured here spent 12.9 ms of CPU per IMU message against 0.8 ms and
-    so lost most IMU samples at 4 x 60 Hz (docs/graph.md).
+    so lost most IMU samples at 4 x 60 Hz (docs/lip/graph.md).
     """
     import argparse
 
@@ -328,7 +327,7 @@ def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], LipN
     parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
     use_lip_dds_profile()
     rclpy.init(args=argv)
-    nodes: list[LipNode] = []
+    nodes: list[GraphNode] = []
     try:
         check_params_files(argv, {c.NAME: c.parameter_names() for c in classes})
         for make in factories:

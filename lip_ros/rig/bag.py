@@ -29,14 +29,14 @@ from lip_msgs_py import (
     imu_to_msg,
 )
 from lip_ros.bagio import RELIABLE_QOS, SENSOR_QOS, mcap_writer
+from lip_ros.lip.sensors import LIDAR_TOPIC
 from lip_ros.outputs import GT_TOPICS, pose_messages
 from lip_ros.rig.capture import CaptureFrame, CaptureSession
 
-__all__ = ["write_capture_bag", "TRUTH_FILE", "LABELS_FILE", "LIDAR_TOPIC"]
+__all__ = ["write_capture_bag", "TRUTH_FILE", "LABELS_FILE"]
 
 TRUTH_FILE = "rig_truth.yaml"
 LABELS_FILE = "rig_labels.npz"
-LIDAR_TOPIC = "/ouster/points"
 LIDAR_FRAME = "os_lidar"
 IMU_LATENCY_NS = 20_000_000  # Bluetooth LE delivery of a DOT sample
 CLOUD_LATENCY_NS = 2_000_000  # driver time after the sweep ends

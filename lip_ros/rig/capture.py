@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from lip_ros.rig.body import BodyModel
+from lip_ros.core.body import BodyModel
 from lip_ros.rig.imu import ImuNoise, ImuRigConfig, ImuStream, ImuTruth, make_imu_truth, simulate_imus
 from lip_ros.rig.lidar import Actor, Frame, OusterModel
 from lip_ros.rig.motion import PerformerMotion, make_motion

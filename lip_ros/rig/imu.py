@@ -29,6 +29,7 @@ from scipy.signal import lfilter
 from lip_ros.core.frames import GRAVITY
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_quat, rot_z
 from lip_ros.core.skeleton import Skeleton
+from lip_ros.lip.sensors import IMU_TOPICS
 from lip_ros.rig.trajectory import Trajectory
 
 __all__ = [
@@ -89,7 +90,7 @@ class ImuRigConfig:
     @classmethod
     def lip(cls, skeleton: Skeleton, max_mount_deg: float = 40.0) -> ImuRigConfig:
         """The LIP rig: the contract's four DOTs (``lip_imus``), ~60 Hz +-0.5 %, near the wrists and ankles."""
-        sensors = tuple((name, s["bone_joint"], s["topic"]) for name, s in skeleton.lip_imus.items())
+        sensors = tuple((name, s["bone_joint"], IMU_TOPICS[name]) for name, s in skeleton.lip_imus.items())
         return cls(sensors, 60.0, rate_tol=0.005, max_mount_deg=max_mount_deg, along=0.85, surface_m=0.035)
 
     @classmethod

@@ -12,8 +12,9 @@ from lip_msgs_py import cloud_to_array, msg_to_imu, msg_to_pose_array, read_head
 from lip_ros.bagio import TopicInfo, bag_topics, read_messages
 from lip_ros.core.rotations import quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
+from lip_ros.lip.sensors import LIDAR_TOPIC
 from lip_ros.outputs import GT_TOPICS
-from lip_ros.rig.bag import LABELS_FILE, LIDAR_TOPIC, TRUTH_FILE
+from lip_ros.rig.bag import LABELS_FILE, TRUTH_FILE
 
 __all__ = ["BagSummary", "summarize_bag", "plot_bag"]
 

@@ -27,14 +27,14 @@ quantised range along the beam; no return = NaN xyz and range 0.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Callable, Sequence, Union
 
 import numpy as np
 
 from lip_msgs_py.ouster import OUSTER_ORIGINAL_DTYPE
-from lip_ros.rig.body import BodyModel
+from lip_ros.core.body import BodyModel
 from lip_ros.rig.scene import Scene
 from lip_ros.rig.trajectory import Trajectory
 
@@ -55,7 +55,7 @@ class Actor:
     """A moving body: its surface model and its motion (a Trajectory or a ``PoseFn``), in S."""
 
     body: BodyModel
-    motion: Union[Trajectory, PoseFn]
+    motion: Trajectory | PoseFn
 
     def pose_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations (24, 3, 3) and joint positions (24, 3) at ``t`` seconds since the capture start."""
@@ -117,12 +117,12 @@ class OusterModel:
             raise ValueError("need beams >= 2, columns >= 1 and a positive rate")
 
     @classmethod
-    def os1_128(cls, columns: int = 1024, rate_hz: float = 10.0, **kwargs) -> "OusterModel":
+    def os1_128(cls, columns: int = 1024, rate_hz: float = 10.0, **kwargs) -> OusterModel:
         """OS1-128, the static sensor of the LIP branch."""
         return cls(beams=128, columns=columns, rate_hz=rate_hz, **kwargs)
 
     @classmethod
-    def os1_64(cls, columns: int = 1024, rate_hz: float = 20.0, **kwargs) -> "OusterModel":
+    def os1_64(cls, columns: int = 1024, rate_hz: float = 20.0, **kwargs) -> OusterModel:
         """OS1-64, the hip-worn sensor of the HSC4D branch."""
         return cls(beams=64, columns=columns, rate_hz=rate_hz, **kwargs)
 

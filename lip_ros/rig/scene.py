@@ -183,7 +183,7 @@ class Scene:
         sensor_xy: tuple[float, float] = (0.0, 0.0),
         clear_view: bool = True,
         ground_reflectivity: float = 0.2,
-    ) -> "Scene":
+    ) -> Scene:
         """A random cluttered scene, reproducible from ``seed``.
 
         Clutter stands in the square of half-size ``extent`` around ``sensor_xy``,

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.urdf import URDF_FILE, skeleton_urdf
-from lip_ros.params import params_path
+from lip_ros.resources import params_path
 
 
 def main(argv: list[str] | None = None) -> int:

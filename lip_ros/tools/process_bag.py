@@ -32,15 +32,15 @@ from rosgraph_msgs.msg import Clock
 from lip_msgs_py import msg_to_diagnostics, msg_to_pose_array, stamp_to_ns
 from lip_msgs_py.stamps import NS_PER_S
 from lip_ros.bagio import bag_span, bag_topics, read_messages
-from lip_ros.core.rotations import geodesic_angle, quat_to_matrix
-from lip_ros.outputs import GT_TOPICS, LIP_TOPICS
+from lip_ros.core import metrics
+from lip_ros.core.rotations import quat_to_matrix
+from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
+from lip_ros.outputs import GT_TOPICS
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
 from lip_ros.tools.ros_cli import ArgumentParser, ToolError, installed_script, run_tool, start_ros, tool_args
 
 __all__ = ["main", "ProcessSummary", "summarize_outputs"]
 
-INPUTS = ["/ouster/points", "/dot/left_wrist/imu", "/dot/right_wrist/imu", "/dot/left_ankle/imu",
-          "/dot/right_ankle/imu"]
 OUTPUTS = [LIP_TOPICS.joint_states, LIP_TOPICS.root_pose, LIP_TOPICS.joint_poses, LIP_TOPICS.skeleton,
            "/diagnostics"]
 MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their stamps are this close
@@ -98,25 +98,24 @@ def summarize_outputs(inputs: Path, outputs: Path) -> ProcessSummary:
               for k, v in values.items() if k.startswith("frames ") and int(v)}
     latency = {k.removeprefix("graph_latency_ms_"): float(v) for k, v in last[POSE_FRAMES].items()
                if k.startswith("graph_latency_ms_")}
-    summary = ProcessSummary(bag_topics(inputs)["/ouster/points"].count, frames, latency)
+    summary = ProcessSummary(bag_topics(inputs)[LIDAR_TOPIC].count, frames, latency)
     if GT_TOPICS.joint_poses not in bag_topics(inputs):
         return summary
     truth = _poses(inputs, GT_TOPICS.joint_poses)
     stamps = np.array(sorted(truth), dtype=np.int64)
-    trans, mpjpe, angle = [], [], []
-    for stamp, (pos, quats) in _poses(outputs, LIP_TOPICS.joint_poses).items():
+    pairs = []  # (estimate, truth) of each output matched to a truth pose
+    for stamp, estimate in _poses(outputs, LIP_TOPICS.joint_poses).items():
         k = int(stamps[np.argmin(np.abs(stamps - stamp))])
-        if abs(k - stamp) > MATCH_NS:
-            continue
-        t_pos, t_quats = truth[k]
-        trans.append(np.linalg.norm(pos[0] - t_pos[0]))
-        mpjpe.append(np.linalg.norm((pos - pos[0]) - (t_pos - t_pos[0]), axis=1).mean())
-        angle.append(np.degrees(geodesic_angle(quat_to_matrix(quats), quat_to_matrix(t_quats))).mean())
-    if trans:
-        summary.matched = len(trans)
-        summary.translation_cm = 100 * float(np.mean(trans))
-        summary.mpjpe_mm = 1000 * float(np.mean(mpjpe))
-        summary.angular_deg = float(np.mean(angle))
+        if abs(k - stamp) <= MATCH_NS:
+            pairs.append((estimate, truth[k]))
+    if pairs:
+        pos, quats = (np.array(a) for a in zip(*(estimate for estimate, _ in pairs)))
+        t_pos, t_quats = (np.array(a) for a in zip(*(true for _, true in pairs)))
+        summary.matched = len(pairs)
+        summary.translation_cm = 100 * float(metrics.translation_error(pos[:, 0], t_pos[:, 0]).mean())
+        summary.mpjpe_mm = 1000 * float(metrics.mpjpe(pos, t_pos).mean())
+        summary.angular_deg = float(np.degrees(metrics.angular_error(quat_to_matrix(quats),
+                                                                     quat_to_matrix(t_quats))).mean())
     return summary
 
 
@@ -220,9 +219,9 @@ def _run(argv: list[str]) -> int:
         raise ToolError(f"{args.inputs} is not a rosbag2 bag directory")
     if args.outputs.exists():
         raise ToolError(f"{args.outputs} exists; choose a new directory")
-    frames_in = bag_topics(args.inputs).get("/ouster/points")
+    frames_in = bag_topics(args.inputs).get(LIDAR_TOPIC)
     if frames_in is None:
-        raise ToolError(f"{args.inputs} has no /ouster/points")
+        raise ToolError(f"{args.inputs} has no {LIDAR_TOPIC}")
     if not args.rate > 0:
         raise ToolError(f"--rate must be > 0, got {args.rate}")
     start_ros(argv)
@@ -236,7 +235,7 @@ def _run(argv: list[str]) -> int:
     procs = [node, recorder]
     try:
         play = subprocess.Popen([installed_script("lip_bag_play"), str(args.inputs), "--clock",
-                                 "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *INPUTS])
+                                 "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *INPUT_TOPICS])
         procs.append(play)
         watch.spin_while(lambda: play.poll() is None, float("inf"))
         if play.returncode != 0:

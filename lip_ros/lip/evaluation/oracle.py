@@ -1,0 +1,54 @@
+"""The oracle front end: the rig's true performer labels and IMU calibration in place of segmentation and
+the online calibration, so that evaluation can tell network errors from front-end errors."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lip_ros.lip.calibration import Calibration
+from lip_ros.lip.evaluation.captures import CaptureTruth, performer_mask
+from lip_ros.lip.segmentation import SegmentationResult, SegmentationStatus
+
+__all__ = ["LabelSegmenter", "truth_calibration"]
+
+
+class LabelSegmenter:
+    """A :class:`lip_ros.lip.pipeline.Segmenter` that returns the pixels the rig labelled as the performer."""
+
+    def __init__(self, capture: CaptureTruth) -> None:
+        self.capture = capture
+
+    def process(self, points: np.ndarray, stamp_ns: int) -> SegmentationResult:
+        """The labelled performer of the frame stamped ``stamp_ns``; MALFORMED for a frame the rig did not make."""
+        k = self.capture.frame_index(stamp_ns)
+        if k is None or points.shape != tuple(self.capture.labels["shape"]):
+            return SegmentationResult(SegmentationStatus.MALFORMED, "not a frame of this capture", int(stamp_ns),
+                                      np.zeros(points.shape, dtype=bool), np.zeros((0, 3), np.float32),
+                                      np.zeros(0, np.uint32), None)
+        mask = performer_mask(self.capture.labels, k) & (points["range"] > 0)
+        picked = points[mask]
+        xyz = np.stack([picked["x"], picked["y"], picked["z"]], axis=1).astype(np.float32)
+        status = SegmentationStatus.OK if len(xyz) else SegmentationStatus.NO_PERFORMER
+        position = xyz[:, :2].mean(axis=0).astype(np.float64) if len(xyz) else None
+        return SegmentationResult(status, "" if len(xyz) else "performer not scanned", int(stamp_ns), mask, xyz,
+                                  picked["t"].astype(np.uint32), position)
+
+
+def truth_calibration(capture: CaptureTruth) -> Calibration:
+    """The rig's true IMU calibration (R_L_I, each R_B_S) as a :class:`Calibration`; the calibrating body's
+    frame is the true pelvis orientation at the first ground-truth pose."""
+    imu = capture.truth["imu_calibration"]
+    R_L_I = np.asarray(imu["R_L_I"], dtype=np.float64)
+    R_L_M = capture.gt_glob_rot[0, 0]
+    names = list(imu["sensors"])
+    return Calibration(
+        R_L_I=R_L_I,
+        R_B_S={n: np.asarray(imu["sensors"][n]["R_B_S"], dtype=np.float64) for n in names},
+        R_I_M=R_L_I.T @ R_L_M,
+        heading=float(np.arctan2(R_L_M[1, 2], R_L_M[0, 2])),
+        heading_source="truth",
+        windows={},
+        residual_deg=dict.fromkeys(names, 0.0),
+        spread_deg=dict.fromkeys(names, 0.0),
+        tilt_deg=0.0,
+    )

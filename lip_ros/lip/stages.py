@@ -1,0 +1,338 @@
+"""The stages of the LIP graph after segmentation, ROS-free: the IMU stage and the pose stage.
+
+The node graph runs them in separate nodes (``calibration_node``, ``pose_node``)
+and :class:`lip_ros.lip.pipeline.LipPipeline` chains them in one object for the
+batch tools; both call the same code, so a bag gives the same poses either way.
+
+* :class:`ImuStage` (IMU synchronisation + calibration): performer frames wait
+  until the four DOTs cover their pose time (``ImuSynchronizer.ready``), then,
+  in the order they came in, either feed the automatic A/T-pose calibration
+  (until it is solved) or come out as calibrated bone orientations and free
+  accelerations in L at the pose time (paper equations 13 and 16), or with the
+  reason they cannot. A new calibration can be started (the current one stays
+  in use until the new one is solved) or the calibration reset.
+* :class:`PoseStage`: the streaming LIP network and the forward kinematics.
+"""
+
+from __future__ import annotations
+
+import enum
+import itertools
+import time
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lip_ros.core.imu_sync import FrameStatus, ImuSampleLike, ImuSynchronizer, SyncConfig, SyncResult
+from lip_ros.core.skeleton import Skeleton, forward_kinematics, load_skeleton
+from lip_ros.lip.calibration import (
+    Calibration,
+    CalibrationConfig,
+    CalibrationDetector,
+    load_calibration,
+    save_calibration,
+)
+from lip_ros.lip.nets.lip_model import LipModel
+from lip_ros.lip.sensors import IMU_NAMES
+
+__all__ = ["Outcome", "BoneFrame", "LipPose", "ImuStage", "PoseStage", "MAX_PENDING_FRAMES", "MAX_POSE_GAP_NS"]
+
+#: Default of how many frames may wait for IMU data (``ImuStage.max_pending``); older ones are skipped.
+MAX_PENDING_FRAMES = 20
+#: Default of how long without a pose before the network starts a new sequence (``PoseStage.max_gap_ns``).
+MAX_POSE_GAP_NS = 2_000_000_000
+
+#: Why a frame gave up waiting for IMU data (more than ``max_pending`` frames behind it).
+LATE_IMU_REASON = "IMU data did not arrive in time"
+
+
+class Outcome(str, enum.Enum):
+    """What became of a LiDAR frame."""
+
+    POSE = "pose"  # a pose was estimated (possibly with held IMU values, see the reason)
+    CALIBRATING = "calibrating"  # no calibration yet: the frame fed the calibration
+    SKIPPED = "skipped"  # no pose: see the reason
+
+
+@dataclass(frozen=True)
+class BoneFrame:
+    """The IMU side of one frame: bone orientations and free accelerations in L at its pose time, or why not.
+
+    ``outcome`` is POSE when ``bone_rot`` / ``free_acc`` are there (order
+    ``IMU_NAMES``); ``tag`` is whatever the caller queued with the frame.
+    """
+
+    frame_stamp_ns: int
+    pose_stamp_ns: int | None
+    outcome: Outcome
+    reason: str
+    points: np.ndarray | None = None  # (N, 3) performer points, as queued
+    sync: SyncResult | None = None
+    bone_rot: np.ndarray | None = None  # (4, 3, 3) R_L_B
+    free_acc: np.ndarray | None = None  # (4, 3) m/s^2 in L, gravity removed
+    seconds: float = 0.0  # synchronisation and calibration time
+    tag: Any = None
+
+
+@dataclass(frozen=True)
+class LipPose:
+    """The body in L at ``stamp_ns`` (frame stamp + mean point time)."""
+
+    stamp_ns: int
+    root_pos: np.ndarray  # (3,) pelvis position
+    local_rot: np.ndarray  # (24, 3, 3), [0] = pelvis orientation
+    glob_rot: np.ndarray  # (24, 3, 3) bone orientations
+    joint_pos: np.ndarray  # (24, 3) joint positions (forward kinematics of the contract skeleton times body_scale)
+    body_scale: float  # the network's estimate of the performer's size (contract skeleton = 1)
+
+
+@dataclass(frozen=True)
+class _Waiting:
+    frame_stamp_ns: int
+    pose_stamp_ns: int | None  # None: unusable frame, passing through in order (see reason)
+    points: np.ndarray | None
+    reason: str
+    tag: Any
+
+
+class ImuStage:
+    """IMU synchronisation and A/T-pose calibration for the performer frames, in their order.
+
+    ``calibration_file``: loaded at start if it exists, written whenever a
+    calibration is solved, removed by :meth:`reset`.
+    """
+
+    def __init__(
+        self,
+        sync: SyncConfig | None = None,
+        calibration_config: CalibrationConfig | None = None,
+        skeleton: Skeleton | None = None,
+        calibration: Calibration | None = None,
+        calibration_file: Path | None = None,
+        max_pending: int = MAX_PENDING_FRAMES,
+    ) -> None:
+        self.skeleton = skeleton or load_skeleton()
+        self.sync = ImuSynchronizer(IMU_NAMES, sync or SyncConfig())
+        self._calibration_config = calibration_config or CalibrationConfig()
+        self.calibration_file = calibration_file
+        self.max_pending = max_pending
+        if calibration is None and calibration_file is not None and calibration_file.is_file():
+            calibration = load_calibration(calibration_file)
+        self.calibration = calibration
+        #: Increases whenever the calibration changes (solved, reset): poses before and after do not chain.
+        self.calibration_count = 0
+        self._detector: CalibrationDetector | None = None
+        self._calibration_samples: list[tuple[str, ImuSampleLike]] = []  # kept, not yet shown to the detector
+        self._pending: deque[_Waiting] = deque()
+        if calibration is None:
+            self.start_calibration()
+
+    @property
+    def calibrated(self) -> bool:
+        """Whether measurements can be turned into bone orientations in L."""
+        return self.calibration is not None
+
+    @property
+    def calibrating(self) -> bool:
+        """Whether an A/T-pose calibration is being looked for (also while an older one is in use)."""
+        return self._detector is not None
+
+    @property
+    def pending(self) -> int:
+        """Frames waiting for IMU data that covers their pose time."""
+        return len(self._pending)
+
+    @property
+    def status(self) -> str:
+        """A one-line description of the calibration state."""
+        parts = []
+        if self.calibration is not None:
+            parts.append(f"calibrated (heading from {self.calibration.heading_source})")
+        if self._detector is not None:
+            parts.append(("recalibrating: " if self.calibration is not None else "") + self._detector.status)
+        return "; ".join(parts)
+
+    def start_calibration(self) -> None:
+        """Look for a new A-pose / T-pose from now on; a current calibration stays in use until it is solved."""
+        self._detector = CalibrationDetector(self.skeleton, self._calibration_config)
+        self._calibration_samples = []
+
+    def reset(self) -> None:
+        """Forget the calibration (and remove its file, so a restart does not resume it) and look for a new one."""
+        self.calibration = None
+        self.calibration_count += 1
+        if self.calibration_file is not None:
+            self.calibration_file.unlink(missing_ok=True)
+        self.start_calibration()
+
+    def add_imu(self, name: str, sample: ImuSampleLike) -> str | None:
+        """One DOT sample (R_I_S, rate and specific force in S); why it was rejected, None if kept."""
+        return self._keep(name, sample, self.sync.add(name, sample))
+
+    def add_imus(self, names: Sequence[str], samples: Sequence[ImuSampleLike]
+                 ) -> tuple[list[str | None], list[BoneFrame]]:
+        """Samples in arrival order, each as :meth:`add_imu` followed by :meth:`poll` (the same results), validated
+        together, which is cheaper; why each was rejected (None if kept), and the frames that came out."""
+        rows, codes = self.sync.validate(samples)
+        reasons, done = [], []
+        for name, sample, row, code in zip(names, samples, rows, codes.tolist(), strict=True):
+            reason = self._keep(name, sample, self.sync.insert(name, int(sample.stamp_ns), row, code))
+            reasons.append(reason)
+            if reason is None:  # a rejected sample changes nothing that makes a frame ready
+                done += self.poll()
+        return reasons, done
+
+    def _keep(self, name: str, sample: ImuSampleLike, reason: str | None) -> str | None:
+        """Remember a sample the synchroniser kept for the calibration, while one is being looked for."""
+        if reason is None and self._detector is not None:
+            self._calibration_samples.append((name, sample))
+        return reason
+
+    def add_frame(self, frame_stamp_ns: int, pose_stamp_ns: int, points: np.ndarray, tag: Any = None
+                  ) -> list[BoneFrame]:
+        """Queue a frame with the performer's points (N, 3) in L; frames that cannot wait any longer come back now."""
+        if self._detector is not None:
+            self._detector.add_cloud(pose_stamp_ns, points)
+        return self._enqueue(_Waiting(frame_stamp_ns, pose_stamp_ns, points, "", tag))
+
+    def add_unusable(self, frame_stamp_ns: int, reason: str, tag: Any = None) -> list[BoneFrame]:
+        """Queue a frame without a performer, so that it comes out (SKIPPED) in order with the others."""
+        return self._enqueue(_Waiting(frame_stamp_ns, None, None, reason, tag))
+
+    @property
+    def data_time_ns(self) -> int | None:
+        """Stamp of the newest IMU sample of any sensor: how far the data has come."""
+        newest = [t for t in map(self.sync.newest_ns, self.sync.names) if t is not None]
+        return max(newest) if newest else None
+
+    def poll(self, now_ns: int | None = None) -> list[BoneFrame]:
+        """The waiting frames whose IMU data is complete, or waited for long enough, in order.
+
+        How long a frame has waited is measured at ``now_ns``, by default the
+        data time (:attr:`data_time_ns`): a sensor that lags behind the others
+        by more than ``SyncConfig.wait_ns`` is given up on, while data that is
+        late as a whole (transport, a busy machine) is waited for, up to
+        ``max_pending`` frames; and the outcome depends on the data alone, not
+        on when it is processed, live or from a bag.
+        """
+        if not self._pending:  # nothing waits: no need for the data time
+            return []
+        now_ns = self.data_time_ns if now_ns is None else now_ns
+        if now_ns is None:
+            return []
+        done = []
+        while self._pending and self._ready(self._pending[0], now_ns):
+            done.append(self._process(self._pending.popleft()))
+        return done
+
+    def flush(self) -> list[BoneFrame]:
+        """Every waiting frame (end of a bag)."""
+        done = [self._process(w) for w in self._pending]
+        self._pending.clear()
+        return done
+
+    def _enqueue(self, waiting: _Waiting) -> list[BoneFrame]:
+        self._pending.append(waiting)
+        done = []
+        while len(self._pending) > self.max_pending:
+            old = self._pending.popleft()
+            if old.pose_stamp_ns is None:
+                done.append(self._process(old))
+            else:
+                done.append(BoneFrame(old.frame_stamp_ns, old.pose_stamp_ns, Outcome.SKIPPED, LATE_IMU_REASON,
+                                      old.points, tag=old.tag))
+        return done
+
+    def _ready(self, waiting: _Waiting, now_ns: int) -> bool:
+        return waiting.pose_stamp_ns is None or self.sync.ready(waiting.pose_stamp_ns, now_ns)
+
+    def _try_calibrate(self, t_ns: int) -> None:
+        """Show the detector the IMU samples stamped up to ``t_ns`` and try to calibrate."""
+        later = []
+        for name, sample in self._calibration_samples:
+            if sample.stamp_ns <= t_ns:
+                self._detector.add_imu(name, sample.stamp_ns, sample.quat, sample.gyro, sample.accel)
+            else:
+                later.append((name, sample))
+        self._calibration_samples = later
+        cal = self._detector.update()
+        if cal is not None:
+            self.calibration = cal
+            self.calibration_count += 1
+            self._detector = None
+            self._calibration_samples = []
+            if self.calibration_file is not None:
+                save_calibration(cal, self.calibration_file)
+
+    def _process(self, w: _Waiting) -> BoneFrame:
+        if w.pose_stamp_ns is None:
+            return BoneFrame(w.frame_stamp_ns, None, Outcome.SKIPPED, w.reason, tag=w.tag)
+        t = w.pose_stamp_ns
+        start = time.perf_counter()
+        if self._detector is not None:
+            self._try_calibrate(t)
+        if self.calibration is None:
+            return BoneFrame(w.frame_stamp_ns, t, Outcome.CALIBRATING, self._detector.status, w.points,
+                             seconds=time.perf_counter() - start, tag=w.tag)
+        synced = self.sync.query(t)
+        if synced.frame_status == FrameStatus.SKIP:
+            return BoneFrame(w.frame_stamp_ns, t, Outcome.SKIPPED, f"IMU: {synced.reason}", w.points, synced,
+                             seconds=time.perf_counter() - start, tag=w.tag)
+        rot, acc = zip(*(self.calibration.apply(n, synced.quat[i], synced.accel[i]) for i, n in enumerate(IMU_NAMES)))
+        return BoneFrame(w.frame_stamp_ns, t, Outcome.POSE, synced.reason, w.points, synced, np.stack(rot),
+                         np.stack(acc), time.perf_counter() - start, w.tag)
+
+
+class PoseStage:
+    """The streaming LIP network and forward kinematics: one frame's points and bones in, its pose out.
+
+    After more than ``max_gap_ns`` without a pose (a calibration reset, the
+    performer lost, IMUs missing) the network starts a new sequence: its
+    recurrent state would describe a body long gone.
+    """
+
+    def __init__(self, model: LipModel, skeleton: Skeleton | None = None, max_gap_ns: int = MAX_POSE_GAP_NS) -> None:
+        self.model = model
+        self.skeleton = skeleton or load_skeleton()
+        self.max_gap_ns = max_gap_ns
+        self.sequences = 0  # sequences started (the first pose, then after each gap)
+        self._last_ns: int | None = None
+        self.model.reset()
+
+    def estimate(self, stamp_ns: int, points: np.ndarray, bone_rot: np.ndarray, free_acc: np.ndarray
+                 ) -> tuple[LipPose, float, float]:
+        """The pose at ``stamp_ns``, and the seconds spent in the network and in the kinematics."""
+        return self.estimate_sequence([stamp_ns], [points], bone_rot[None], free_acc[None])[0]
+
+    def estimate_sequence(self, stamps_ns: Sequence[int], points: Sequence[np.ndarray], bone_rot: np.ndarray,
+                          free_acc: np.ndarray) -> list[tuple[LipPose, float, float]]:
+        """The poses of several frames in turn (as :meth:`estimate` of each, up to float rounding, with the same
+        new sequences), with one network forward per run of frames without a gap and the kinematics of all
+        frames at once; the seconds are each frame's share."""
+        if not len(stamps_ns):
+            return []
+        start = time.perf_counter()
+        new = set()  # frames that start a new sequence
+        last = self._last_ns
+        for k, stamp_ns in enumerate(stamps_ns):
+            if last is None or stamp_ns - last > self.max_gap_ns:
+                new.add(k)
+            last = stamp_ns
+        outs = []
+        for a, b in itertools.pairwise(sorted({0, *new, len(stamps_ns)})):
+            if a in new:
+                self.model.reset()
+                self.sequences += 1
+            outs.append(self.model.stream(points[a:b], bone_rot[a:b], free_acc[a:b]))
+        self._last_ns = stamps_ns[-1]
+        rot, trans, scale = (np.concatenate([getattr(o, k) for o in outs]) for k in ("local_rot", "translation",
+                                                                                      "body_scale"))
+        t_fk = time.perf_counter()
+        glob, pos = forward_kinematics(self.skeleton, rot, trans, self.skeleton.offsets * scale[:, None, None])
+        net_s, fk_s = (t_fk - start) / len(rot), (time.perf_counter() - t_fk) / len(rot)
+        return [(LipPose(int(t), trans[k], rot[k], glob[k], pos[k], float(scale[k])), net_s, fk_s)
+                for k, t in enumerate(stamps_ns)]

@@ -1,0 +1,194 @@
+"""calibration_node: IMU synchronisation and the A/T-pose calibration; calibrated bone inertia out.
+
+Subscribes to the four DOTs (SensorDataQoS) and the performer's points of
+``segmentation_node`` (reliable). For each performer frame, once the DOTs
+cover its pose time, it either feeds the automatic A-pose / T-pose
+calibration or publishes, per sensor, the bone's orientation R_L_B and free
+acceleration (gravity removed) in the LiDAR frame at the pose time: a
+``sensor_msgs/Imu`` on ``bone_topics`` (reliable) with the performer cloud's
+stamp and frame id, angular velocity marked not provided (REP-145
+covariance[0] = -1). ``pose_node`` joins them with the points by exact stamp.
+
+Calibration: automatic at start (or loaded from ``calibration_file``, which
+every solved calibration is written to, so a restarted node resumes), and on
+request through std_srvs/Trigger services ``lip/start_calibration`` (look for
+a new A/T-pose; the current calibration stays in use until it is solved) and
+``lip/reset_calibration`` (forget it and its file, look for a new one). The
+state is published latched (reliable, transient local) on ``calibration_topic``
+as a std_msgs/String holding YAML: state, status line, the calibration (the
+``calibration_file`` layout) and the file.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, PointCloud2
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from lip_msgs_py import (
+    DiagnosticLevel,
+    MalformedMessageError,
+    cloud_to_xyz,
+    imu_sample,
+    imu_to_msg,
+    msg_to_imu,
+    read_header,
+)
+from lip_ros.core.imu_sync import SyncConfig
+from lip_ros.core.rotations import matrix_to_quat
+from lip_ros.lip.calibration import CalibrationError
+from lip_ros.lip.sensors import IMU_NAMES
+from lip_ros.lip.stages import BoneFrame, ImuStage, Outcome
+from lip_ros.nodes.base import (
+    BETWEEN_NODES,
+    IMU_INPUT,
+    GraphNode,
+    LatencyWindow,
+    Param,
+    ParameterError,
+    positive,
+    run_nodes,
+)
+from lip_ros.nodes.lip import LIP_PARAMS_FILE
+
+__all__ = ["CalibrationNode", "main"]
+
+#: Reliable and transient local: a late subscriber gets the last calibration state.
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def _four_topics(value: Any) -> str | None:
+    return None if len(value) == len(IMU_NAMES) else (
+        f"needs {len(IMU_NAMES)} topics, in the order {', '.join(IMU_NAMES)}; got {len(value)}")
+
+
+class CalibrationNode(GraphNode):
+    """The IMU stage of the graph: synchronisation, calibration, calibrated bone orientations and accelerations."""
+
+    NAME = "calibration_node"
+    PARAMS_FILE = LIP_PARAMS_FILE
+    PARAMS = {
+        "imu_topics": Param("the four DOT Imu inputs, in the order " + ", ".join(IMU_NAMES), _four_topics),
+        "imu_rate_hz": Param("expected DOT rate", positive),
+        "performer_topic": Param("input: the performer's points of segmentation_node"),
+        "bone_topics": Param("outputs: calibrated bone orientation and free acceleration in L, order as imu_topics",
+                             _four_topics),
+        "calibration_topic": Param("output (latched): the calibration state as YAML"),
+        "calibration_file": Param("calibration YAML: loaded at start if present, written when solved ('' = none)"),
+        "max_imu_gap_s": Param("widest gap between two samples of a DOT that is interpolated across", positive),
+        "max_imu_hold_s": Param("oldest a DOT sample may be when held for a frame it does not cover", positive),
+        "imu_wait_s": Param("how long a frame waits for late DOT data after its pose time", positive),
+        "max_pending_frames": Param("frames that may wait for DOT data; older ones are skipped", positive),
+    }
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NAME, **kwargs)
+        p = self.params
+        file = Path(p["calibration_file"]).expanduser() if p["calibration_file"] else None
+        sync = SyncConfig(max_gap_ns=int(p["max_imu_gap_s"] * 1e9), max_hold_ns=int(p["max_imu_hold_s"] * 1e9),
+                          wait_ns=int(p["imu_wait_s"] * 1e9))
+        try:
+            self.stage = ImuStage(sync, calibration_file=file, max_pending=p["max_pending_frames"])
+        except (OSError, ValueError, KeyError, CalibrationError) as exc:
+            raise ParameterError(f"cannot load calibration_file {file}: {exc}") from exc
+        self._latency = LatencyWindow()
+        self._bone_pubs = [self.create_publisher(Imu, topic, BETWEEN_NODES) for topic in p["bone_topics"]]
+        self._state_pub = self.create_publisher(String, p["calibration_topic"], LATCHED)
+        self._published_state: tuple[int, bool] | None = None
+        self._held = 0  # frames published with a held (not interpolated) sample of some DOT
+        self._last_sync = "no frame yet"
+        for name, topic in zip(IMU_NAMES, p["imu_topics"]):
+            self.add_input(name, topic, Imu, p["imu_rate_hz"], lambda msg, name=name: self._on_imu(name, msg),
+                           IMU_INPUT)
+        self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
+                       self._on_performer, BETWEEN_NODES)
+        self.create_service(Trigger, "lip/start_calibration", self._on_start, callback_group=self.group)
+        self.create_service(Trigger, "lip/reset_calibration", self._on_reset, callback_group=self.group)
+        self._publish_state()
+        self.get_logger().info(f"ready; {self.stage.status}")
+
+    def _on_imu(self, name: str, msg: Imu) -> int:
+        sample = msg_to_imu(msg)
+        reason = self.stage.add_imu(name, sample)
+        if reason is not None:
+            raise MalformedMessageError(reason)
+        self._publish(self.stage.poll())
+        return sample.stamp_ns
+
+    def _on_performer(self, msg: PointCloud2) -> int:
+        stamp_ns, frame_id = read_header(msg)
+        points = cloud_to_xyz(msg)
+        self._publish(self.stage.add_frame(stamp_ns, stamp_ns, points, (frame_id, time.monotonic())))
+        self._publish(self.stage.poll())
+        return stamp_ns
+
+    def _publish(self, frames: list[BoneFrame]) -> None:
+        for f in frames:
+            if f.outcome == Outcome.POSE:
+                frame_id, received = f.tag
+                quats = matrix_to_quat(f.bone_rot)
+                for pub, q, acc in zip(self._bone_pubs, quats, f.free_acc):
+                    pub.publish(imu_to_msg(self.backend, imu_sample(f.pose_stamp_ns, frame_id, quat=q, accel=acc)))
+                self._latency.add(time.monotonic() - received)
+                self._held += bool(f.reason)
+                self._last_sync = f.reason or "all DOTs interpolated"
+            elif f.outcome == Outcome.CALIBRATING:
+                self.count_frame(Outcome.CALIBRATING.value)
+            else:
+                self.count_frame(f"skipped: {f.reason.split(':')[0]}", f"{f.pose_stamp_ns}: {f.reason}")
+                self._last_sync = f.reason
+        if frames:
+            self._publish_state()
+
+    def _publish_state(self) -> None:
+        """The calibration state on the latched topic, when it changed."""
+        state = (self.stage.calibration_count, self.stage.calibrating)
+        if state == self._published_state:
+            return
+        self._published_state = state
+        cal = self.stage.calibration
+        doc = {"state": ("recalibrating" if cal is not None else "calibrating") if self.stage.calibrating
+               else "calibrated",
+               "status": self.stage.status,
+               "calibration": None if cal is None else cal.as_dict(),
+               "file": None if self.stage.calibration_file is None else str(self.stage.calibration_file)}
+        self._state_pub.publish(String(data=yaml.safe_dump(doc, sort_keys=False)))
+        if cal is not None and not self.stage.calibrating:
+            where = f", saved to {self.stage.calibration_file}" if self.stage.calibration_file else ""
+            self.get_logger().info(f"{self.stage.status}{where}")
+
+    def _on_start(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.stage.start_calibration()
+        self._publish_state()
+        response.success, response.message = True, "hold the A-pose, then the T-pose, still, facing the LiDAR"
+        self.get_logger().info(f"calibration requested: {response.message}")
+        return response
+
+    def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.stage.reset()
+        self._publish_state()
+        response.success, response.message = True, "calibration forgotten; looking for the A-pose and T-pose"
+        self.get_logger().info(response.message)
+        return response
+
+    def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
+        """Calibration state, sync health, frames waiting for DOT data, latency performer cloud -> bones published."""
+        level = DiagnosticLevel.OK if self.stage.calibrated else DiagnosticLevel.WARN
+        return level, self.stage.status, {"calibration": "calibrated" if self.stage.calibrated else "none",
+                                          "pending": self.stage.pending, "bones with a held DOT sample": self._held,
+                                          "last sync": self._last_sync, **self._latency.values("latency_ms")}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run lip_ros calibration_node``."""
+    return run_nodes(CalibrationNode.NAME, __doc__.split("\n\n")[0], [CalibrationNode], [CalibrationNode], argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,1 +1,0 @@
-"""Training of the LIP networks on synthetic rig data (``lip_train``)."""

@@ -1,0 +1,418 @@
+"""Performer segmentation: per-point precision and recall on rig captures at 4-20 m with clutter and a bystander,
+the lock, bystanders passing close, dropped frames, occlusion, bad input; and its parts (ground plane, background
+model, range-image clustering, association).
+
+Each capture is simulated once (``capture_run`` is cached) and fed, frame by frame, to several segmenters at once.
+Run with ``-s`` to see the per-distance table.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from lip_msgs_py import OUSTER_ORIGINAL_DTYPE, RosbagsBackend, array_to_cloud, cloud_to_array
+from lip_ros.core.body import BodyModel
+from lip_ros.core.skeleton import forward_kinematics, load_skeleton
+from lip_ros.lip.segmentation import PerformerSegmenter, SegmentationConfig, SegmentationResult, SegmentationStatus
+from lip_ros.lip.segmentation.clusters import describe_clusters, link_components
+from lip_ros.lip.segmentation.scene import BackgroundModel, GroundPlane, fit_ground_plane
+from lip_ros.lip.segmentation.tracking import Track, associate
+from lip_ros.rig.capture import CaptureConfig, CaptureSession
+from lip_ros.rig.lidar import Actor, OusterModel
+from lip_ros.rig.scene import Boxes, Scene
+
+DISTANCES = (4.0, 8.0, 12.0, 20.0)
+SEED = 1
+SECONDS = 13.0
+DROPPED = (75, 76, 77)  # frames (walking) one segmenter never sees
+BLANKED = range(80, 95)  # frames (1.5 s) in which another one sees no performer returns at all
+RESUMED = 60  # frame (walking) at which a segmenter starts, restarted, knowing where the performer was 1 s before
+MIN_SCORE = 0.95
+R_L_M = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # facing the LiDAR
+OK = SegmentationStatus.OK
+
+
+@dataclass
+class Run:
+    """What one segmenter made of a capture, frame by frame (scores are NaN where it found no performer)."""
+
+    status: list[SegmentationStatus] = field(default_factory=list)
+    reason: list[str] = field(default_factory=list)
+    precision: list[float] = field(default_factory=list)
+    recall: list[float] = field(default_factory=list)
+    others: list[int] = field(default_factory=list)  # bystander pixels in the performer's mask
+    masks_equal: list[bool] = field(default_factory=list)  # for the message round trip
+
+    def record(self, result: SegmentationResult, labels: np.ndarray) -> None:
+        mine, truth = result.mask, labels == 0
+        hits = int((mine & truth).sum())
+        self.status.append(result.status)
+        self.reason.append(result.reason)
+        self.precision.append(hits / mine.sum() if mine.any() else np.nan)
+        self.recall.append(hits / truth.sum() if mine.any() else np.nan)
+        self.others.append(int((mine & (labels > 0)).sum()))
+
+    @property
+    def lock(self) -> int:
+        """Index of the first frame with the performer."""
+        return self.status.index(OK)
+
+    def mean_scores(self, frames: range | None = None) -> tuple[float, float]:
+        """Mean precision and recall over ``frames`` (default: all from the lock on; misses count as 0)."""
+        frames = range(self.lock, len(self.status)) if frames is None else frames
+        p = np.nan_to_num([self.precision[k] for k in frames])
+        r = np.nan_to_num([self.recall[k] for k in frames])
+        return float(p.mean()), float(r.mean())
+
+
+def blank_performer(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """A copy of the frame in which the performer returned nothing."""
+    out = points.copy()
+    gone = labels == 0
+    for c in "xyz":
+        out[c][gone] = np.nan
+    out["range"][gone] = 0
+    return out
+
+
+@functools.cache
+def capture_run(distance: float) -> tuple[CaptureSession, dict[str, Run], int]:
+    """A 13 s walk at ``distance`` with clutter and a bystander, segmented by: ``all`` (every frame), ``dropped``
+    (not DROPPED), ``occluded`` (BLANKED frames without the performer), and at 8 m also ``still`` (lock rule
+    'still' at the known spot), ``message`` (through a PointCloud2 and ``cloud_to_array``) and ``resumed``
+    (from frame RESUMED on, with ``resume_xy`` the position ``all`` tracked 1 s before). Also returns the
+    number of frames in which the bystander was seen."""
+    session = CaptureSession(CaptureConfig(scenario="walk", seconds=SECONDS, seed=SEED, columns=1024,
+                                           distance_m=distance, clutter=True, second_person=True))
+    segmenters = {name: PerformerSegmenter() for name in ("all", "dropped", "occluded")}
+    if distance == 8.0:
+        segmenters["still"] = PerformerSegmenter(SegmentationConfig(lock_rule="still", expected_xy=(distance, 0.0)))
+        segmenters["message"] = PerformerSegmenter()
+    runs = {name: Run() for name in segmenters}
+    backend = RosbagsBackend()
+    bystander_seen = 0
+    last_seen = None  # where ``all`` tracked the performer 1 s before RESUMED
+    for cf in session.frames():
+        points, labels, stamp = cf.frame.points, cf.frame.labels, cf.stamp_ns
+        bystander_seen += bool((labels == 1).any())
+        results = {}
+        if distance == 8.0 and cf.index == RESUMED:
+            segmenters["resumed"] = PerformerSegmenter(SegmentationConfig(resume_xy=tuple(last_seen)))
+            runs["resumed"] = Run()
+        for name, segmenter in segmenters.items():
+            if name == "dropped" and cf.index in DROPPED:
+                continue
+            frame = points
+            if name == "occluded" and cf.index in BLANKED:
+                frame = blank_performer(points, labels)
+            elif name == "message":
+                frame = cloud_to_array(array_to_cloud(backend, points, stamp, "os_lidar"))
+            results[name] = segmenter.process(frame, stamp)
+            runs[name].record(results[name], labels)
+        if cf.index == RESUMED - 10:
+            last_seen = results["all"].position
+        if "message" in results:
+            runs["message"].masks_equal.append(bool(np.array_equal(results["message"].mask, results["all"].mask)))
+    return session, runs, bystander_seen
+
+
+@pytest.mark.parametrize("distance", DISTANCES)
+def test_precision_and_recall_per_distance(distance):
+    session, runs, _ = capture_run(distance)
+    run = runs["all"]
+    precision, recall = run.mean_scores()
+    print(f"\n{distance:5.1f} m: lock at frame {run.lock}, {len(run.status) - run.lock} frames after it: "
+          f"precision {precision:.4f}, recall {recall:.4f}, worst frame {np.nanmin(run.precision):.3f} / "
+          f"{np.nanmin(run.recall):.3f}")
+    assert precision >= MIN_SCORE and recall >= MIN_SCORE
+    # locked in the calibration, by the T-pose; never lost afterwards
+    phases = {name: (start, end) for name, start, end in session.phases_ns()}
+    lock_stamp = session.frame_stamp_ns(run.lock)
+    assert phases["a_to_t"][0] <= lock_stamp <= phases["t_pose"][1]
+    assert all(s == SegmentationStatus.NO_PERFORMER and "T-pose" in r
+               for s, r in zip(run.status[:run.lock], run.reason[:run.lock]))
+    assert run.status[run.lock:].count(OK) >= 0.97 * (len(run.status) - run.lock)
+    assert SegmentationStatus.LOST not in run.status
+
+
+@pytest.mark.parametrize("distance", DISTANCES)
+def test_bystander_is_never_the_performer(distance):
+    _, runs, bystander_seen = capture_run(distance)
+    assert bystander_seen > 0.8 * len(runs["all"].status)
+    for name, run in runs.items():
+        assert sum(run.others) == 0, name
+
+
+@pytest.mark.parametrize("distance", DISTANCES)
+def test_tracking_survives_dropped_frames(distance):
+    _, runs, _ = capture_run(distance)
+    run = runs["dropped"]  # records only the frames it saw
+    after = range(DROPPED[0], len(run.status))
+    assert all(run.status[k] == OK for k in after)
+    assert min(run.mean_scores(after)) >= MIN_SCORE
+
+
+@pytest.mark.parametrize("distance", (8.0, 20.0))
+def test_occluded_performer_is_lost_then_reacquired(distance):
+    _, runs, _ = capture_run(distance)
+    run = runs["occluded"]
+    hidden = [run.status[k] for k in BLANKED]
+    assert set(hidden[:9]) == {SegmentationStatus.NO_PERFORMER}  # shorter than lost_after_s
+    assert set(hidden[11:]) == {SegmentationStatus.LOST}
+    back = BLANKED.stop
+    assert run.status[back] == OK and run.reason[back] == "re-acquired the performer"
+    assert min(run.mean_scores(range(back, len(run.status)))) >= MIN_SCORE
+    assert sum(run.others) == 0
+
+
+def test_still_rule_locks_in_the_a_pose():
+    session, runs, _ = capture_run(8.0)
+    run = runs["still"]
+    a_pose_end = {name: end for name, _, end in session.phases_ns()}["a_pose"]
+    assert run.lock == SegmentationConfig().lock_frames - 1
+    assert session.frame_stamp_ns(run.lock) < a_pose_end
+    assert min(run.mean_scores()) >= MIN_SCORE
+    with pytest.raises(ValueError, match="expected_xy"):
+        SegmentationConfig(lock_rule="still")
+
+
+def test_a_restarted_segmenter_resumes_near_the_last_position():
+    _, runs, _ = capture_run(8.0)
+    run = runs["resumed"]
+    assert run.lock == 0 and "locked" in run.reason[0]  # at once, walking, no T-pose needed
+    assert min(run.mean_scores()) >= MIN_SCORE and sum(run.others) == 0
+
+
+def test_point_cloud_message_gives_the_same_result():
+    _, runs, _ = capture_run(8.0)
+    assert all(runs["message"].masks_equal) and runs["message"].status == runs["all"].status
+
+
+def test_result_carries_points_and_times():
+    session = CaptureSession(CaptureConfig(seconds=SECONDS, seed=2, distance_m=6.0, columns=512, clutter=False))
+    segmenter = PerformerSegmenter(SegmentationConfig(lock_rule="still", expected_xy=(6.0, 0.0)))
+    for cf in session.frames(stop=4):
+        result = segmenter.process(cf.frame.points, cf.stamp_ns)
+    assert result.status == OK and result.reason == ""
+    pts = cf.frame.points
+    np.testing.assert_array_equal(result.points, np.stack([pts[c][result.mask] for c in "xyz"], axis=1))
+    np.testing.assert_array_equal(result.t_ns, pts["t"][result.mask])
+    assert result.points.dtype == np.float32 and result.t_ns.dtype == np.uint32
+    assert result.mean_t_ns == pytest.approx(pts["t"][result.mask].mean(), abs=1)
+    assert abs(result.pose_stamp_ns - cf.truth.stamp_ns) < 1_000_000  # the rig stamps its ground truth that way
+    np.testing.assert_allclose(result.position, [6.0, 0.0], atol=0.15)
+
+
+# ------------------------------------------------------------------------- bystander passing close
+
+
+def gliding_person(times: list[float], xy: list[tuple[float, float]], ground_z: float) -> Actor:
+    """A person in A-pose, facing the LiDAR, gliding through the waypoints ``xy`` at ``times`` (seconds)."""
+    skeleton = load_skeleton()
+    local = skeleton.pose_local_rotations("a_pose")
+    local[0] = R_L_M
+    way = np.asarray(xy, dtype=np.float64)
+
+    def pose(t: float) -> tuple[np.ndarray, np.ndarray]:
+        x, y = (np.interp(t, times, way[:, a]) for a in (0, 1))
+        return forward_kinematics(skeleton, local, np.array([x, y, skeleton.pelvis_height + ground_z]))
+
+    return Actor(BodyModel(skeleton), pose)
+
+
+@pytest.mark.parametrize("side", ["front", "behind"])
+def test_bystander_passing_close_does_not_swap(side):
+    """During the performer's T-pose a second person passes 1 m in front of them (hiding them) or 0.8 m behind."""
+    config = CaptureConfig(scenario="walk", seconds=SECONDS, seed=SEED, columns=1024, distance_m=8.0, clutter=True)
+    session = CaptureSession(config)
+    t_pose = {name: (start, end) for name, start, end in session.phases_ns()}["t_pose"]
+    t0, t1 = ((t - session.epoch_ns) * 1e-9 for t in t_pose)
+    x = 8.0 - 1.0 if side == "front" else 8.0 + 0.8
+    session.others = [gliding_person([t0 + 0.3, t1 - 0.3], [(x, -2.5), (x, 2.5)], -config.lidar_height_m)]
+    segmenter, run = PerformerSegmenter(), Run()
+    for cf in session.frames(stop=int(t1 * config.rate_hz) + 10):
+        run.record(segmenter.process(cf.frame.points, cf.stamp_ns), cf.frame.labels)
+    assert sum(run.others) == 0
+    assert run.status[run.lock:] == [OK] * (len(run.status) - run.lock)
+    assert min(run.mean_scores()) >= MIN_SCORE
+    assert min(run.recall[run.lock:]) >= 0.9  # also while hidden in part: the pieces on either side are found
+
+
+@pytest.mark.parametrize("deepest_y", [-0.6, -0.4])
+def test_t_pose_rule_ignores_an_object_someone_walks_past(deepest_y):
+    """A person-sized box, as wide as arms in T-pose, whose right side a passer-by hides for a while: it narrows
+    and widens again, on one side only, and must not be taken for the performer."""
+    lidar = OusterModel.os1_128(columns=1024)
+    box = Boxes(np.array([[8.0, 0.0, -0.35]]), np.array([[0.25, 0.75, 0.85]]), np.zeros(1), np.full(1, 0.5))
+    static = lidar.static_image(Scene(ground_z=-1.2, boxes=box))
+    passer = gliding_person([0.5, 1.5, 2.5], [(7.0, -2.5), (7.0, deepest_y), (7.0, -2.5)], -1.2)
+    segmenter, rng = PerformerSegmenter(), np.random.default_rng(0)
+    for k in range(35):
+        frame = lidar.scan(k * lidar.period_ns, static, [passer], rng)
+        assert segmenter.process(frame.points, frame.stamp_ns).status == SegmentationStatus.NO_PERFORMER
+    assert not segmenter.locked
+
+
+# ----------------------------------------------------------------------------------------- bad input
+
+
+def rig_frame() -> tuple[np.ndarray, int]:
+    """The first frame of a small capture and its stamp."""
+    session = CaptureSession(CaptureConfig(seconds=SECONDS, seed=3, distance_m=6.0, columns=512, clutter=False))
+    cf = next(session.frames())
+    return cf.frame.points, cf.stamp_ns
+
+
+def test_bad_frames_get_a_status_and_a_reason():
+    points, stamp = rig_frame()
+    segmenter = PerformerSegmenter()
+    nan = points.copy()
+    for c in "xyz":
+        nan[c] = np.nan
+    nan["range"] = 0
+    cases = [
+        (np.zeros((0, 0), OUSTER_ORIGINAL_DTYPE), SegmentationStatus.EMPTY_FRAME, "no points"),
+        (nan, SegmentationStatus.EMPTY_FRAME, "no returns"),
+        (points.reshape(-1), SegmentationStatus.MALFORMED, "organized"),
+        (np.zeros((128, 512, 3), np.float32), SegmentationStatus.MALFORMED, "structured"),
+        (points[["x", "y", "z"]], SegmentationStatus.MALFORMED, "lack the fields ['t', 'range']"),
+        ([[1.0, 2.0]], SegmentationStatus.MALFORMED, "structured"),
+        (np.zeros((4, 8), [(c, "f4") for c in "xyz"] + [("t", "u4"), ("range", "U3")]), SegmentationStatus.MALFORMED,
+         "not numeric"),
+    ]
+    for k, (frame, status, reason) in enumerate(cases):
+        result = segmenter.process(frame, stamp + k)
+        assert result.status == status and reason in result.reason, (k, result.reason)
+        assert not result.mask.any() and result.points.shape == (0, 3) and result.t_ns.shape == (0,)
+        assert result.mean_t_ns is None and result.pose_stamp_ns is None
+    assert segmenter.process(points, 1.5).status == SegmentationStatus.MALFORMED  # stamps are int ns
+    first = segmenter.process(points, stamp + 10)
+    assert first.status == SegmentationStatus.NO_PERFORMER and first.mask.shape == points.shape
+    for frame, when, reason in ((points[:, :256], stamp + 11, "differs from the first frame's"),
+                                (points, stamp + 10, "not after the previous frame's")):
+        result = segmenter.process(frame, when)
+        assert result.status == SegmentationStatus.MALFORMED and reason in result.reason
+    assert segmenter.process(points, stamp + 12).status == SegmentationStatus.NO_PERFORMER
+    segmenter.reset()
+    assert segmenter.process(points[:, :256], stamp).status == SegmentationStatus.NO_PERFORMER
+
+
+def test_no_ground_means_no_lock():
+    points, stamp = rig_frame()
+    segmenter = PerformerSegmenter()
+    sky = points.copy()
+    low = sky["z"] < 0.0
+    for c in "xyz":
+        sky[c][low] = np.nan
+    sky["range"][low] = 0
+    result = segmenter.process(sky, stamp)
+    assert result.status == SegmentationStatus.NO_PERFORMER and result.reason == "no ground plane found yet"
+    assert segmenter.ground is None
+    segmenter.process(points, stamp + 1)
+    assert segmenter.ground is not None
+
+
+# ----------------------------------------------------------------------------------------------- parts
+
+
+def test_ground_plane_fit_is_robust():
+    rng = np.random.default_rng(0)
+    tilt = np.deg2rad(3.0)
+    normal = np.array([np.sin(tilt), 0.0, np.cos(tilt)])
+    xy = rng.uniform(-20.0, 20.0, (3000, 2))
+    z = (-1.5 - normal[0] * xy[:, 0]) / normal[2] + rng.normal(0.0, 0.005, 3000)
+    clutter = np.column_stack([rng.uniform(-20, 20, (1500, 2)), rng.uniform(-1.4, 2.0, 1500)])
+    wall = np.column_stack([np.full(1500, 6.0), rng.uniform(-5, 5, 1500), rng.uniform(-1.5, 2.0, 1500)])
+    nan = np.full((10, 3), np.nan)
+    points = np.concatenate([np.column_stack([xy, z]), clutter, wall, nan])
+    plane = fit_ground_plane(points, 0.03, 15.0, 500, rng)
+    np.testing.assert_allclose(plane.normal, normal, atol=2e-3)
+    assert plane.offset == pytest.approx(1.5, abs=0.01)
+    assert plane.height(np.array([[0.0, 0.0, 0.5]]))[0] == pytest.approx(2.0, abs=0.01)
+    assert fit_ground_plane(wall, 0.03, 15.0, 500, rng) is None
+    known = GroundPlane.from_coefficients((0.0, 0.0, 2.0, 2.4))
+    assert known.offset == pytest.approx(1.2) and known.height(np.zeros((1, 3)))[0] == pytest.approx(1.2)
+    with pytest.raises(ValueError):
+        GroundPlane.from_coefficients((0.0, 0.0, -1.0, 1.0))
+
+
+def test_background_learns_the_farthest_consistent_surface():
+    model = BackgroundModel((1, 3), margin_m=0.1, margin_per_m=0.0, confirm_frames=3, absorb_frames=6)
+    keep = np.zeros((1, 3), dtype=bool)
+    wall = np.array([[10.0, 10.0, 10.0]], dtype=np.float32)
+    for _ in range(3):
+        assert model.classify(wall)[1].all()  # unknown: not explained
+        model.update(wall, keep)
+    np.testing.assert_array_equal(model.range, wall)
+    person = np.array([[6.0, 0.0, 10.0]], dtype=np.float32)  # no return in the middle pixel changes nothing
+    nearer, unexplained = model.classify(person)
+    np.testing.assert_array_equal(nearer, [[True, False, False]])
+    assert not unexplained.any()
+    spike = np.array([[10.0, 10.0, 30.0]], dtype=np.float32)
+    for frame in (spike, wall, spike, spike, wall):  # a farther surface needs 3 consecutive returns
+        model.update(frame, keep)
+    np.testing.assert_array_equal(model.range, wall)
+    assert model.classify(spike)[1][0, 2]  # farther than the background: not explained either
+    for _ in range(5):  # a nearer object becomes background only after absorb_frames
+        model.update(person, keep)
+    assert model.range[0, 0] == 10.0
+    model.update(person, np.array([[True, False, False]]))  # excluded pixels learn nothing
+    assert model.range[0, 0] == 10.0
+    model.update(person, keep)
+    assert model.range[0, 0] == 6.0
+    model.forget(np.array([[True, True, False]]))
+    np.testing.assert_array_equal(model.range, [[0.0, 0.0, 10.0]])
+
+
+def test_clusters_join_across_the_column_wrap_and_split_in_depth():
+    width = 64
+    rows = np.array([10, 11, 10, 11, 10, 11])
+    cols = np.array([width - 1, width - 1, 0, 0, 30, 30])
+    azimuth = np.pi - 2.0 * np.pi * cols / width
+    rng_m = np.array([5.0, 5.0, 5.0, 5.0, 5.0, 8.0])
+    elevation = np.deg2rad(22.5 - rows * 45.0 / 127)
+    xyz = rng_m[:, None] * np.column_stack([np.cos(elevation) * np.cos(azimuth),
+                                            np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+    angles = (np.deg2rad(45.0 / 127), 2.0 * np.pi / width)
+    kwargs = {"pixel_angle": angles, "link_m": 0.2, "link_spacing": 1.5, "reach": 2}
+    labels, k = link_components(rows, cols, xyz, rng_m, (128, width), True, **kwargs)
+    assert k == 3 and len(set(labels[:4])) == 1 and labels[4] != labels[5]
+    labels, k = link_components(rows, cols, xyz, rng_m, (128, width), False, **kwargs)
+    assert k == 4 and labels[0] != labels[2]
+    c = describe_clusters(labels, k, xyz, xyz[:, 2] + 1.2)
+    assert c.count.tolist() == [2, 2, 1, 1]
+    assert c.top[0] == pytest.approx(xyz[0, 2] + 1.2) and c.width[2] == 0.0
+
+
+def test_association_is_nearest_first_within_gates():
+    predicted = np.array([[0.0, 0.0], [1.0, 0.0]])
+    centroids = np.array([[0.9, 0.0], [0.2, 0.0], [5.0, 0.0]])
+    allowed = np.ones((2, 3), dtype=bool)
+    assert associate(predicted, np.array([1.0, 1.0]), centroids, allowed).tolist() == [1, 0]
+    assert associate(predicted, np.array([0.1, 0.05]), centroids, allowed).tolist() == [-1, -1]
+    allowed[0, 1] = False
+    assert associate(predicted, np.array([1.0, 1.0]), centroids, allowed).tolist() == [-1, 0]
+    assert associate(np.zeros((0, 2)), np.zeros(0), centroids, np.zeros((0, 3), bool)).tolist() == []
+
+
+def test_track_outline_grows_on_both_sides_only_when_arms_spread():
+    track = Track.start(np.array([8.0, 0.0]), 0.5, 0.5, 0, 0.3)
+    track.observe(np.array([8.0, 0.0]), 0.85, 0.85, 100_000_000, 0.5)  # T-pose
+    np.testing.assert_allclose(track.spread, [0.35, 0.35])
+    assert track.stay_frames == 2
+    box = Track.start(np.array([8.0, 0.0]), 0.8, 0.8, 0, 0.3)
+    box.observe(np.array([8.0, 0.2]), 0.6, 0.6, 100_000_000, 0.5)  # its right side hidden by a passer-by
+    box.observe(np.array([8.0, 0.0]), 0.8, 0.8, 200_000_000, 0.5)
+    np.testing.assert_allclose(box.spread, [0.0, 0.4])
+    np.testing.assert_allclose(box.velocity, [0.0, -0.5])  # 2 m/s, then -2 m/s, smoothed with gain 0.5
+    np.testing.assert_allclose(box.predict(300_000_000, 0.5), [8.0, -0.05])
+    np.testing.assert_allclose(box.predict(2_000_000_000, 0.5), [8.0, -0.25])  # extrapolated 0.5 s at most
+    walker = Track.start(np.array([8.0, 0.0]), 0.3, 0.3, 0, 0.3)
+    walker.observe(np.array([8.0, 1.0]), 0.3, 0.3, 500_000_000, 0.5)  # a new stay: its outline starts over
+    np.testing.assert_allclose(walker.origin, [8.0, 1.0])
+    np.testing.assert_allclose(walker.spread, [0.0, 0.0])
+    assert walker.stay_frames == 1

@@ -1,0 +1,76 @@
+"""The graph's stages without DDS: exact-stamp join, the IMU stage's calibration control, the pose stage's
+sequences (the parameter file and its checks: test/nodes/test_lip_params.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import DEMO_BAG
+
+from lip_ros.core.exact_sync import ExactTimeJoiner
+from lip_ros.lip.batch import replay_bag
+from lip_ros.lip.nets.config import LipConfig
+from lip_ros.lip.nets.lip_model import LipModel
+from lip_ros.lip.nets.models import LipNet
+from lip_ros.lip.pipeline import LipPipeline, PipelineConfig
+from lip_ros.lip.stages import ImuStage, PoseStage
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def test_joiner_emits_complete_sets_in_order_and_gives_up_older_ones():
+    j = ExactTimeJoiner(("points", "a", "b"))
+    assert j.add("points", 10, "p10") == ([], [])
+    assert j.add("points", 20, "p20") == ([], [])
+    assert j.add("a", 20, "a20") == ([], [])
+    done, dropped = j.add("b", 20, "b20")
+    assert done == [{"points": "p20", "a": "a20", "b": "b20"}]
+    assert [(d.stamp_ns, d.items, d.missing(j.names)) for d in dropped] == [(10, {"points": "p10"}, ["a", "b"])]
+    assert j.open_stamps == 0
+    with pytest.raises(KeyError):
+        j.add("c", 30, None)
+
+
+def test_joiner_bounds_what_waits():
+    j = ExactTimeJoiner(("x", "y"), max_stamps=3)
+    dropped = [d for t in range(5) for d in j.add("x", t, t)[1]]
+    assert [d.stamp_ns for d in dropped] == [0, 1] and j.open_stamps == 3
+
+
+@pytest.fixture(scope="module")
+def calibrated_file(tmp_path_factory):
+    """The demo bag through the batch pipeline, which saves the calibration it finds."""
+    path = tmp_path_factory.mktemp("cal") / "calibration.yaml"
+    pipeline = LipPipeline(LipModel.load(), PipelineConfig(calibration_file=path))
+    for _ in replay_bag(pipeline, DEMO_BAG):
+        pass
+    assert pipeline.calibrated and path.is_file()
+    return path
+
+
+def test_imu_stage_resumes_recalibrates_and_resets(calibrated_file, tmp_path):
+    file = tmp_path / "cal.yaml"
+    file.write_bytes(calibrated_file.read_bytes())
+    stage = ImuStage(calibration_file=file)
+    assert stage.calibrated and not stage.calibrating and stage.status.startswith("calibrated")
+    stage.start_calibration()  # the old calibration stays in use meanwhile
+    assert stage.calibrated and stage.calibrating and "recalibrating" in stage.status
+    count = stage.calibration_count
+    stage.reset()
+    assert not stage.calibrated and stage.calibrating and not file.exists()
+    assert stage.calibration_count == count + 1
+    assert ImuStage(calibration_file=file).calibrating  # a restart after a reset does not resume
+
+
+def test_pose_stage_starts_a_new_sequence_after_a_gap():
+    torch_model = LipModel(LipNet(LipConfig.tiny()))
+    stage = PoseStage(torch_model, max_gap_ns=1_000_000_000)
+    rng = np.random.default_rng(0)
+    rot = np.broadcast_to(np.eye(3), (4, 3, 3)).copy()
+    pts = rng.normal([5.0, 0.0, 0.0], 0.2, (200, 3)).astype(np.float32)
+    outs = [stage.estimate(t, pts, rot, np.zeros((4, 3)))[0] for t in (0, 100_000_000, 200_000_000)]
+    assert stage.sequences == 1
+    again = stage.estimate(3_000_000_000, pts, rot, np.zeros((4, 3)))[0]
+    assert stage.sequences == 2
+    np.testing.assert_allclose(again.local_rot, outs[0].local_rot, atol=1e-6)  # fresh state: as the first frame
+    assert not np.allclose(outs[1].local_rot, outs[0].local_rot, atol=1e-6)

@@ -1,0 +1,91 @@
+"""The demo bag through the live graph over real DDS: player, fusion_node and recorder in separate processes."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import DEMO_BAG, console_script
+
+from lip_msgs_py import msg_to_diagnostics, msg_to_joint_state, msg_to_pose_stamped
+from lip_ros.bagio import bag_topics, read_messages
+from lip_ros.core.skeleton import joint_state_names, load_skeleton
+from lip_ros.lip.batch import replay_bag
+from lip_ros.lip.nets.lip_model import LipModel
+from lip_ros.lip.pipeline import LipPipeline, Outcome
+
+pytestmark = pytest.mark.ros  # DDS traffic or subprocesses
+
+
+@pytest.fixture(scope="module")
+def replay(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """``lip_process_bag``: player, fusion_node and recorder in three processes; the outputs and the summary."""
+    out = tmp_path_factory.mktemp("replay") / "outputs"
+    png = out.parent / "replay.png"
+    proc = subprocess.run([console_script("lip_process_bag"), str(DEMO_BAG), str(out), "--plot", str(png)],
+                          capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert (out.parent / "outputs_calibration.yaml").is_file()  # the node saved the calibration it found
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    return out, proc.stdout
+
+
+def _last_statuses(bag: Path) -> dict[str, object]:
+    """The last diagnostic status of each name in a bag."""
+    last = {}
+    for m in read_messages(bag, ["/diagnostics"]):
+        last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
+    return last
+
+
+def test_every_frame_is_accounted_for(replay: tuple[Path, str]) -> None:
+    replay, stdout = replay
+    assert "frames in: 130" in stdout and "accuracy on" in stdout
+    frames_in = bag_topics(DEMO_BAG)["/ouster/points"].count
+    last = _last_statuses(replay)
+    assert int(last["segmentation_node: ouster"].values["accepted"]) == frames_in  # the DDS profile delivered all
+    frames = {k: int(v) for name, s in last.items() if name.endswith(": frames")
+              for k, v in s.values.items() if k.startswith("frames ")}
+    pending = int(last["calibration_node: frames"].values["pending"])
+    assert pending <= 1  # the last frame may wait for IMU data that never comes (bag ended)
+    assert sum(frames.values()) + pending == frames_in, frames
+    assert frames["frames pose"] == bag_topics(replay)["/lip/root_pose"].count
+    assert frames["frames pose"] > frames_in / 2
+    calibration = last["calibration_node: frames"]
+    assert calibration.level == 0 and calibration.message.startswith("calibrated")
+    # every performer cloud without a pose was accounted for upstream (calibrating or skipped there)
+    upstream = sum(v for k, v in frames.items() if k == "frames calibrating" or k.startswith("frames skipped: IMU"))
+    assert int(last["pose_node: frames"].values["performer clouds without bones"]) == upstream
+
+
+def test_graph_agrees_with_the_batch_core(replay: tuple[Path, str]) -> None:
+    """The same bag through ``lip_ros.lip.batch.replay_bag`` (no DDS): the same frames get poses, the same poses."""
+    live = {p.stamp_ns: p for p in map(msg_to_pose_stamped, (m.msg for m in read_messages(replay[0],
+                                                                                           ["/lip/root_pose"])))}
+    batch = {r.pose.stamp_ns: r.pose for r in replay_bag(LipPipeline(LipModel.load()), DEMO_BAG)
+             if r.outcome == Outcome.POSE}
+    common = sorted(set(live) & set(batch))
+    assert len(common) >= 0.95 * max(len(live), len(batch)), (len(live), len(batch), len(common))
+    diff = np.array([np.linalg.norm(live[t].position - batch[t].root_pos) for t in common])
+    assert np.median(diff) < 1e-4 and np.percentile(diff, 95) < 0.01, (np.median(diff), diff.max())
+
+
+def test_outputs_are_stamped_when_scanned_and_track_the_truth(replay: tuple[Path, str]) -> None:
+    replay = replay[0]
+    truth = {p.stamp_ns: p
+             for p in map(msg_to_pose_stamped, (m.msg for m in read_messages(DEMO_BAG, ["/gt/root_pose"])))}
+    poses = [msg_to_pose_stamped(m.msg) for m in read_messages(replay, ["/lip/root_pose"])]
+    stamps = np.array(sorted(truth))
+    errors = []
+    for p in poses:
+        k = stamps[np.argmin(np.abs(stamps - p.stamp_ns))]
+        assert abs(int(k) - p.stamp_ns) < 1_000_000  # the same moment as the truth, not a receive time
+        assert p.frame_id == "os_lidar"
+        errors.append(np.linalg.norm(truth[k].position - p.position))
+    assert np.mean(errors) < 0.10, np.mean(errors)
+    names = joint_state_names(load_skeleton())
+    states = [msg_to_joint_state(m.msg, names) for m in read_messages(replay, ["/lip/joint_states"])]
+    assert [s.stamp_ns for s in states] == [p.stamp_ns for p in poses]
+    assert all(np.isfinite(s.positions).all() and len(s.positions) == 69 for s in states)

@@ -1,0 +1,172 @@
+"""The stage executables over real DDS: calibration services and latched state, start-up errors, wrong topic
+types. Each node runs as its own process, as ``ros2 run lip_ros <node>`` would start it."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+import yaml
+from geometry_msgs.msg import PoseStamped
+from helpers import DEMO_BAG, console_script
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from lip_msgs_py import msg_to_pose_stamped
+from lip_ros.bagio import read_messages
+from lip_ros.core.urdf import URDF_FILE
+from lip_ros.lip.batch import replay_bag
+from lip_ros.lip.nets.lip_model import LipModel
+from lip_ros.lip.pipeline import LipPipeline, PipelineConfig
+from lip_ros.resources import params_path
+
+pytestmark = pytest.mark.ros  # DDS traffic or subprocesses
+
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+@pytest.fixture(scope="module")
+def saved_calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A calibration found on the demo bag (the batch pipeline saves it as the node would)."""
+    path = tmp_path_factory.mktemp("calibration") / "calibration.yaml"
+    pipeline = LipPipeline(LipModel.load(), PipelineConfig(calibration_file=path))
+    for _ in replay_bag(pipeline, DEMO_BAG):
+        pass
+    assert path.is_file()
+    return path
+
+
+def _start(exe: str, *ros_args: str) -> subprocess.Popen:
+    return subprocess.Popen([console_script(exe), "--ros-args", *ros_args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+
+
+def _spin_until(node, done, proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        assert proc.poll() is None, proc.stdout.read()
+        assert time.monotonic() < deadline, "timed out"
+        rclpy.spin_once(node, timeout_sec=0.1)
+
+
+def _call(node, client, proc: subprocess.Popen) -> Trigger.Response:
+    _spin_until(node, lambda: client.service_is_ready(), proc)
+    future = client.call_async(Trigger.Request())
+    _spin_until(node, future.done, proc)
+    return future.result()
+
+
+def test_calibration_state_is_latched_and_controlled_by_services(ros_node, saved_calibration, tmp_path):
+    file = tmp_path / "calibration.yaml"
+    file.write_bytes(saved_calibration.read_bytes())
+    proc = _start("calibration_node", "-p", f"calibration_file:={file}")
+    try:
+        states: list[dict] = []
+        time.sleep(2.0)  # subscribe late: the latched state must still arrive
+        ros_node.create_subscription(String, "/lip/calibration", lambda m: states.append(yaml.safe_load(m.data)),
+                                     LATCHED)
+        _spin_until(ros_node, lambda: states, proc)
+        assert states[-1]["state"] == "calibrated" and states[-1]["file"] == str(file)
+        saved = yaml.safe_load(file.read_text())  # the calibration itself, in the file's layout
+        assert states[-1]["calibration"].keys() == saved.keys()
+        np.testing.assert_allclose(states[-1]["calibration"]["R_L_I"], saved["R_L_I"], atol=1e-12)
+
+        start = _call(ros_node, ros_node.create_client(Trigger, "/lip/start_calibration"), proc)
+        assert start.success and "T-pose" in start.message
+        _spin_until(ros_node, lambda: states[-1]["state"] == "recalibrating", proc)
+        assert file.is_file()  # in use until a new one is solved
+
+        reset = _call(ros_node, ros_node.create_client(Trigger, "/lip/reset_calibration"), proc)
+        assert reset.success
+        _spin_until(ros_node, lambda: states[-1]["state"] == "calibrating", proc)
+        assert states[-1]["calibration"] is None and not file.exists()
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=10)
+
+
+@pytest.mark.parametrize(("exe", "args", "message"), [
+    ("pose_node", ["-p", "weights:=/nonexistent/lip"], "cannot load weights /nonexistent/lip"),
+    ("segmentation_node", ["-p", "lidar_rate_hz:=-1.0"], "lidar_rate_hz must be > 0"),
+    ("segmentation_node", ["-p", "lidar_rate_hz:=fast"], "lidar_rate_hz"),
+    ("calibration_node", ["-p", "imu_topics:=[/a, /b]"], "imu_topics needs 4 topics"),
+    ("fusion_node", ["--params-file", "BAD_PARAMS"], "unknown parameter(s) lidar_topics"),
+])
+def test_bad_start_up_is_one_clear_line_and_exit_2(exe, args, message, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("segmentation_node:\n  ros__parameters:\n    lidar_topics: /x\n")
+    args = [str(bad) if a == "BAD_PARAMS" else a for a in args]
+    proc = subprocess.run([console_script(exe), "--ros-args", *args], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_an_input_of_another_type_stops_the_node_with_exit_2(ros_node):
+    pub = ros_node.create_publisher(Imu, "/test/wrong_type", 10)
+    proc = _start("segmentation_node", "-r", "/ouster/points:=/test/wrong_type", "-p", "diagnostics_period_s:=0.3")
+    try:
+        out = proc.communicate(timeout=30)[0]
+    finally:
+        pub.destroy()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2, out
+    assert "/test/wrong_type is published as sensor_msgs/msg/Imu" in out and "Traceback" not in out, out
+
+
+def test_a_restarted_graph_resumes_mid_capture(ros_node, tmp_path):
+    """Kill fusion_node mid-capture and start it again: it resumes with the saved calibration and performer
+    position (the A/T-pose is only at the start of the bag, so without them no pose could follow)."""
+    files = {"calibration_file": tmp_path / "calibration.yaml", "performer_file": tmp_path / "performer.yaml"}
+    args = ["-p", "use_sim_time:=true", *(a for k, v in files.items() for a in ("-p", f"{k}:={v}"))]
+    poses: list[tuple[object, int]] = []
+    joint_states: list[JointState] = []
+    run = [0]
+    ros_node.create_subscription(PoseStamped, "/lip/root_pose",
+                                 lambda m: poses.append((msg_to_pose_stamped(m), run[0])), RELIABLE)
+    ros_node.create_subscription(JointState, "/lip/joint_states", joint_states.append, RELIABLE)
+    graph = _start("fusion_node", *args)
+    inputs = ["/ouster/points", *(f"/dot/{n}/imu" for n in ("left_wrist", "right_wrist", "left_ankle", "right_ankle"))]
+    player = subprocess.Popen([console_script("lip_bag_play"), str(DEMO_BAG), "--clock", "--rate", "0.5",
+                               "--wait-for-subscribers", "--topics", *inputs],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _spin_until(ros_node, lambda: len(poses) >= 10 and all(f.is_file() for f in files.values()), graph, 90.0)
+        graph.kill()  # a crash, not a clean shutdown
+        graph.communicate(timeout=10)
+        run[0] = 1
+        graph = _start("fusion_node", *args)
+        _spin_until(ros_node, lambda: player.poll() is not None, graph, 90.0)
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            rclpy.spin_once(ros_node, timeout_sec=0.1)
+    finally:
+        graph.terminate()
+        out = graph.communicate(timeout=10)[0]
+        if player.poll() is None:
+            player.kill()
+    assert "resuming: the performer was last seen" in out, out
+    if importlib.util.find_spec("tf2_msgs") is None:  # no /tf without tf2_msgs: said once, and the graph goes on
+        assert "tf2_msgs is not installed: the pelvis is not broadcast on /tf" in out
+    # a plain rclpy subscriber got JointStates that robot_state_publisher can use with the shipped URDF
+    urdf_joints = [j.get("name") for j in ET.parse(params_path(URDF_FILE)).getroot().iter("joint")
+                   if j.get("type") == "revolute"]
+    assert len(joint_states) >= len(poses) - 5 and all(list(js.name) == urdf_joints for js in joint_states)
+    after = [p for p, r in poses if r == 1]
+    assert len(after) >= 15, (len(poses), len(after), out[-3000:])
+    truth = {p.stamp_ns: p.position for p in map(msg_to_pose_stamped,
+                                                 (m.msg for m in read_messages(DEMO_BAG, ["/gt/root_pose"])))}
+    stamps = np.array(sorted(truth))
+    nearest = [int(stamps[np.argmin(np.abs(stamps - p.stamp_ns))]) for p in after]
+    assert all(abs(k - p.stamp_ns) < 1_000_000 for k, p in zip(nearest, after))  # truth of the same moment
+    errors = [np.linalg.norm(p.position - truth[k]) for k, p in zip(nearest, after)]
+    assert np.mean(errors) < 0.10, np.mean(errors)
