@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -13,8 +14,8 @@ import pytest
 pytestmark = pytest.mark.ros  # DDS traffic or subprocesses
 
 REPO = Path(__file__).resolve().parents[1]
-EXECUTABLES = ["fusion_node", "segmentation_node", "calibration_node", "pose_node", "lip_rig", "lip_bag_play",
-               "lip_bag_record", "lip_process_bag"]
+#: Every console script of setup.py (what `ros2 run lip_ros <exe>` must find).
+EXECUTABLES = re.findall(r'"(\w+) = [\w.]+:main"', (REPO / "setup.py").read_text(encoding="utf-8"))
 
 
 def _ros2_run_path(prefix_path: str, package: str, executable: str) -> Path:

@@ -6,12 +6,5 @@
 :mod:`~lip_ros.lip.segmentation.tracking` (tracks and their association).
 """
 
-from lip_ros.lip.segmentation.segmenter import (
-    LOCK_RULES,
-    PerformerSegmenter,
-    SegmentationConfig,
-    SegmentationResult,
-    SegmentationStatus,
-)
-
-__all__ = ["LOCK_RULES", "SegmentationConfig", "SegmentationStatus", "SegmentationResult", "PerformerSegmenter"]
+from lip_ros.lip.segmentation.segmenter import *  # noqa: F403  (its public API is this package's)
+from lip_ros.lip.segmentation.segmenter import __all__  # noqa: F401

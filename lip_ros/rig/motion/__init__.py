@@ -8,26 +8,5 @@ others: :mod:`~lip_ros.rig.motion.primitives` (smooth curves and oscillators),
 :mod:`~lip_ros.rig.motion.acts` (squats, jumps, arms, martial arts, dance).
 """
 
-from lip_ros.rig.motion.performer import (
-    ACTIVITIES,
-    MIN_DURATION,
-    SCENARIOS,
-    PerformerMotion,
-    Phase,
-    calibration_duration,
-    make_motion,
-    random_motion,
-    random_scenario,
-)
-
-__all__ = [
-    "SCENARIOS",
-    "ACTIVITIES",
-    "MIN_DURATION",
-    "Phase",
-    "PerformerMotion",
-    "make_motion",
-    "random_scenario",
-    "random_motion",
-    "calibration_duration",
-]
+from lip_ros.rig.motion.performer import *  # noqa: F403  (its public API is this package's)
+from lip_ros.rig.motion.performer import __all__  # noqa: F401
