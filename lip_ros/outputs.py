@@ -1,8 +1,10 @@
 """The contract's pose messages of one frame, for any message backend (rclpy nodes, rosbags bags).
 
-``/lip/joint_states`` (JointState, 69 ``<joint>_rz/_ry/_rx`` angles), ``/lip/root_pose``
-(PoseStamped), ``/lip/joint_poses`` (PoseArray, 24 joints) and ``/lip/skeleton``
-(MarkerArray); the rig's ``/gt/*`` topics use the same builders.
+A set of pose topics (:class:`PoseTopics`): joint states (JointState, 69
+``<joint>_rz/_ry/_rx`` angles), root pose (PoseStamped), joint poses
+(PoseArray, 24 joints) and, optionally, the skeleton (MarkerArray). Each branch
+names its own (LIP: :data:`lip_ros.lip.sensors.LIP_TOPICS`, ``/lip/*``); the
+rig's ground truth is :data:`GT_TOPICS` (``/gt/*``), built the same way.
 """
 
 from __future__ import annotations
