@@ -40,7 +40,9 @@ class CaptureConfig:
     sensor: str = "os1-128"
     columns: int = 1024
     rate_hz: float = 10.0
-    azimuth_window_deg: tuple[float, float] | None = None  # Ouster encoder angles (180 = +x of L)
+    azimuth_window_deg: tuple[float, float] | None = None  # Ouster encoder angles from column 0, sweep order
+    column0_azimuth_deg: float = 180.0  # where column 0 looks in L (180: the rig's default, 0: ouster-ros os_lidar)
+    beam_azimuth_deg: tuple[float, ...] = ()  # per-row azimuth offsets of the beams, cycled (() = none)
     clutter: bool = True
     second_person: bool = False
     max_mount_deg: float = 40.0
@@ -58,6 +60,7 @@ class CaptureConfig:
         """Plain Python types (for the truth sidecar)."""
         d = asdict(self)
         d["azimuth_window_deg"] = None if self.azimuth_window_deg is None else list(self.azimuth_window_deg)
+        d["beam_azimuth_deg"] = list(self.beam_azimuth_deg)
         return d
 
 
@@ -127,7 +130,9 @@ class CaptureSession:
         else:
             self.scene = Scene(ground_z=ground_z)
         self.lidar = _SENSORS[cfg.sensor](columns=cfg.columns, rate_hz=cfg.rate_hz,
-                                          azimuth_window_deg=cfg.azimuth_window_deg)
+                                          azimuth_window_deg=cfg.azimuth_window_deg,
+                                          column0_azimuth_deg=cfg.column0_azimuth_deg,
+                                          beam_azimuth_deg=tuple(cfg.beam_azimuth_deg))
         imu_config = ImuRigConfig.lip(self.motion.skeleton, max_mount_deg=cfg.max_mount_deg)
         self.imu_truth = make_imu_truth(self.motion.skeleton, imu_config, np.random.default_rng([cfg.seed, 102]))
 

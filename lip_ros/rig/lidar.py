@@ -2,10 +2,15 @@
 
 Follows the Ouster scan model of docs/conventions.md: row i has elevation
 ``fov/2 - i * fov / (H - 1)`` (row 0 highest), column j is fired at
-``j * T / W`` after the frame stamp with azimuth ``pi - 2 pi j / W`` in L (column
-0 looks backwards, column W/2 along +x), ray direction
-``[cos(phi) cos(theta), cos(phi) sin(theta), sin(phi)]``, all rays from the
-origin of L.
+``j * T / W`` after the frame stamp with encoder azimuth
+``column0 - 2 pi j / W`` in L (clockwise seen from above), and row i looks
+``beam_offset[i]`` beside it (the beams' azimuth angles of a staggered cloud;
+destaggering leaves a fraction of a column; zero by default): ray
+direction ``[cos(phi) cos(theta), cos(phi) sin(theta), sin(phi)]``, all rays
+from the origin of L. ``column0_azimuth_deg`` is 180 by default (column 0 looks
+backwards, -x: the rig's own convention, which its bags and training data
+use); 0 is ouster-ros's ``os_lidar`` (column 0 along +x), any other value a
+mounting yaw.
 
 The sensor has a fixed pose (``rotation`` R_S_L, ``position`` p_S_L) in the
 scene frame S in which the scene and the actors live; for the LIP rig S = L and
@@ -105,6 +110,8 @@ class OusterModel:
     range_noise_per_m: float = 0.0003  # ... growing by this much per metre of range
     dropout_prob: float = 0.001
     azimuth_window_deg: tuple[float, float] | None = None
+    column0_azimuth_deg: float = 180.0  # where column 0 looks in L (0: ouster-ros os_lidar, 180: the rig's default)
+    beam_azimuth_deg: tuple[float, ...] = ()  # per-row azimuth offsets, cycled over the rows (() = none)
     signal_scale: float = 1.0e5  # intensity of a white target at normal incidence at 1 m
     ambient_level: float = 300.0  # ambient of a white surface
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # R_S_L
@@ -144,8 +151,19 @@ class OusterModel:
 
     @cached_property
     def azimuth(self) -> np.ndarray:
-        """(W,) column azimuths in L, radians: pi - 2 pi j / W."""
-        return np.pi - 2.0 * np.pi * np.arange(self.columns) / self.columns
+        """(W,) column (encoder) azimuths in L, radians: column0 - 2 pi j / W."""
+        return np.deg2rad(self.column0_azimuth_deg) - 2.0 * np.pi * np.arange(self.columns) / self.columns
+
+    @cached_property
+    def beam_offset(self) -> np.ndarray:
+        """(H,) each row's azimuth offset from its column's, radians."""
+        if not self.beam_azimuth_deg:
+            return np.zeros(self.beams)
+        return np.deg2rad(np.resize(np.asarray(self.beam_azimuth_deg, dtype=np.float64), self.beams))
+
+    def _column_of_azimuth(self, theta: float) -> float:
+        """The fractional column whose encoder azimuth is ``theta`` (rad)."""
+        return (np.deg2rad(self.column0_azimuth_deg) - theta) * self.columns / (2.0 * np.pi)
 
     @cached_property
     def column_t_ns(self) -> np.ndarray:
@@ -165,7 +183,8 @@ class OusterModel:
     def directions(self) -> np.ndarray:
         """(H, W, 3) unit beam directions in L."""
         cp, sp = np.cos(self.elevation)[:, None], np.sin(self.elevation)[:, None]
-        ct, st = np.cos(self.azimuth)[None, :], np.sin(self.azimuth)[None, :]
+        theta = self.azimuth[None, :] + self.beam_offset[:, None]
+        ct, st = np.cos(theta), np.sin(theta)
         return np.stack(np.broadcast_arrays(cp * ct, cp * st, sp), axis=-1)
 
     @cached_property
@@ -181,7 +200,7 @@ class OusterModel:
         """The column whose azimuth passes nearest to a point (3,) of S."""
         p = self.rotation.T @ (np.asarray(point_s) - self.position)
         theta = np.arctan2(p[1], p[0])
-        return int(np.rint((np.pi - theta) * self.columns / (2.0 * np.pi))) % self.columns
+        return int(np.rint(self._column_of_azimuth(theta))) % self.columns
 
     def static_image(self, scene: Scene) -> StaticImage:
         """Cast every beam against the static scene (once per capture)."""
@@ -200,8 +219,9 @@ class OusterModel:
         if np.cos(phi) <= np.sin(alpha):
             cols = np.arange(self.columns)
         else:
-            half = np.arcsin(np.sin(alpha) / np.cos(phi)) * self.columns / (2.0 * np.pi)
-            jc = (np.pi - np.arctan2(c[1], c[0])) * self.columns / (2.0 * np.pi)
+            spread = np.abs(self.beam_offset).max()
+            half = (np.arcsin(np.sin(alpha) / np.cos(phi)) + spread) * self.columns / (2.0 * np.pi)
+            jc = self._column_of_azimuth(np.arctan2(c[1], c[0]))
             lo, hi = int(np.floor(jc - half)), int(np.ceil(jc + half))
             cols = np.arange(self.columns) if hi - lo + 1 >= self.columns else np.arange(lo, hi + 1) % self.columns
         return row_slice, cols[self.column_valid[cols]]

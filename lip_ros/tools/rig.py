@@ -24,7 +24,8 @@ def _make_bag(args: argparse.Namespace) -> int:
     window = tuple(args.azimuth_window) if args.azimuth_window else None
     config = CaptureConfig(scenario=args.scenario, seconds=args.seconds, seed=args.seed, distance_m=args.distance,
                            bearing_deg=args.bearing, sensor=args.sensor, columns=args.columns,
-                           azimuth_window_deg=window, clutter=not args.no_clutter,
+                           azimuth_window_deg=window, column0_azimuth_deg=args.column0_azimuth,
+                           beam_azimuth_deg=tuple(args.beam_azimuth), clutter=not args.no_clutter,
                            second_person=args.second_person, max_mount_deg=args.max_mount_deg)
     t0 = time.perf_counter()
     session = CaptureSession(config)
@@ -59,7 +60,14 @@ def parser() -> argparse.ArgumentParser:
     m.add_argument("--sensor", choices=("os1-128", "os1-64"), default="os1-128")
     m.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=1024)
     m.add_argument("--azimuth-window", type=float, nargs=2, metavar=("START", "END"),
-                   help="Ouster azimuth window in encoder degrees (180 = straight ahead); other columns return nothing")
+                   help="Ouster azimuth window in encoder degrees from column 0, in sweep order (with the default "
+                        "--column0-azimuth, 180 is +x); other columns return nothing")
+    m.add_argument("--column0-azimuth", type=float, default=CaptureConfig.column0_azimuth_deg, metavar="DEG",
+                   help="where column 0 looks in the cloud's frame: 0 is ouster-ros's os_lidar (+x), the default "
+                        "180 the rig's own convention (-x); any other value is a mounting yaw")
+    m.add_argument("--beam-azimuth", type=float, nargs="+", default=list(CaptureConfig.beam_azimuth_deg),
+                   metavar="DEG", help="per-row azimuth offsets, cycled over the rows: a staggered (raw) OS1 cloud "
+                                       "has about 4.2 1.4 -1.4 -4.2; a destaggered one a fraction of a column")
     m.add_argument("--no-clutter", action="store_true", help="ground plane only")
     m.add_argument("--second-person", action="store_true", help="add a bystander walking near the performer")
     m.add_argument("--max-mount-deg", type=float, default=40.0, help="largest IMU mounting rotation (deg)")

@@ -192,6 +192,51 @@ def test_point_cloud_message_gives_the_same_result():
     assert all(runs["message"].masks_equal) and runs["message"].status == runs["all"].status
 
 
+#: Sensor conventions the rig's own default (column 0 along -x) does not cover: (column 0 azimuth deg, per-row
+#: azimuth offsets deg, bearing of the performer deg). ouster-ros's os_lidar (column 0 along +x) with the performer
+#: straight ahead, where the sweep starts and ends (the seam), and to the side; a mounting yaw; the sub-column
+#: azimuth differences between the rows that a destaggered Ouster cloud keeps.
+CONVENTIONS = {
+    "os_lidar, ahead (seam)": (0.0, (), 0.0),
+    "os_lidar, side": (0.0, (), 120.0),
+    "mounting yaw 37": (37.0, (), -60.0),
+    "destagger residual": (180.0, (0.15, -0.05, 0.1, -0.15), 30.0),
+}
+
+
+@functools.cache
+def convention_run(name: str) -> tuple[CaptureSession, Run, PerformerSegmenter]:
+    """A 13 s walk at 8 m (clutter, bystander) recorded with the sensor convention ``name``, segmented."""
+    column0, beams, bearing = CONVENTIONS[name]
+    session = CaptureSession(CaptureConfig(scenario="walk", seconds=SECONDS, seed=SEED, columns=1024, distance_m=8.0,
+                                           bearing_deg=bearing, column0_azimuth_deg=column0, beam_azimuth_deg=beams,
+                                           clutter=True, second_person=True))
+    segmenter, run = PerformerSegmenter(), Run()
+    for cf in session.frames():
+        run.record(segmenter.process(cf.frame.points, cf.stamp_ns), cf.frame.labels)
+    return session, run, segmenter
+
+
+@pytest.mark.parametrize("name", sorted(CONVENTIONS))
+def test_any_column_convention_and_mounting_yaw(name):
+    """Where column 0 looks is derived from the cloud: the performer is tracked as with the rig's default."""
+    session, run, segmenter = convention_run(name)
+    column0, beams, _ = CONVENTIONS[name]
+    columns = segmenter.columns
+    assert columns.direction == -1  # an Ouster sweeps clockwise seen from above
+    true = column0 + (np.resize(beams, 128) if beams else np.zeros(128))  # where column 0 of each row looks
+    fitted = np.degrees(columns.column0_rad + columns.row_offset_rad)
+    seen = columns.row_offset_rad != 0.0
+    assert seen.sum() >= 64  # rows with returns (the highest look at the sky)
+    np.testing.assert_allclose(((fitted - true + 180.0) % 360.0 - 180.0)[seen], 0.0, atol=0.05)
+    precision, recall = run.mean_scores()
+    assert precision >= MIN_SCORE and recall >= MIN_SCORE, (precision, recall)
+    phases = {name: (start, end) for name, start, end in session.phases_ns()}
+    assert phases["a_to_t"][0] <= session.frame_stamp_ns(run.lock) <= phases["t_pose"][1]
+    assert run.status[run.lock:].count(OK) >= 0.97 * (len(run.status) - run.lock)
+    assert SegmentationStatus.LOST not in run.status and sum(run.others) == 0
+
+
 def test_result_carries_points_and_times():
     session = CaptureSession(CaptureConfig(seconds=SECONDS, seed=2, distance_m=6.0, columns=512, clutter=False))
     segmenter = PerformerSegmenter(SegmentationConfig(lock_rule="still", expected_xy=(6.0, 0.0)))

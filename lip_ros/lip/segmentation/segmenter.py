@@ -59,6 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lip_ros.core.lidar_columns import ColumnAzimuths, fit_column_azimuths
 from lip_ros.lip.segmentation.clusters import Clusters, describe_clusters, link_components
 from lip_ros.lip.segmentation.scene import BackgroundModel, GroundPlane, fit_ground_plane
 from lip_ros.lip.segmentation.tracking import Track, associate
@@ -214,6 +215,7 @@ class PerformerSegmenter:
             None if cfg.ground_plane is None else GroundPlane.from_coefficients(cfg.ground_plane)
         )
         self.background: BackgroundModel | None = None
+        self.columns: ColumnAzimuths | None = None  # where each column looks, fitted to the first frames
         self.performer: Track | None = None
         self._others: list[Track] = []
         self._last_stamp_ns: int | None = None
@@ -241,6 +243,8 @@ class PerformerSegmenter:
             cfg = self.config
             self.background = BackgroundModel(shape, cfg.margin_m, cfg.margin_per_m, cfg.confirm_frames,
                                               cfg.absorb_frames)
+        if self.columns is None:  # until a frame gives a fit, windows are every column (slower, still right)
+            self.columns = fit_column_azimuths(points["x"], points["y"])
         if self.ground is None:
             self.ground = self._fit_ground(frame)
         if self.ground is None:
@@ -330,16 +334,10 @@ class PerformerSegmenter:
         return ((c.count >= cfg.min_points) & (c.top >= cfg.min_top_m) & (c.top <= cfg.max_top_m)
                 & (c.bottom <= cfg.max_bottom_m) & (c.width <= cfg.max_width_m) & (c.depth <= cfg.max_depth_m))
 
-    @staticmethod
-    def _window(centre: np.ndarray, radius: float, width: int) -> np.ndarray | None:
-        """Columns (wrapped indices) whose azimuth passes within ``radius`` of ``centre`` (2,); None: all."""
-        dist = float(np.linalg.norm(centre))
-        if dist <= radius:
-            return None
-        half = np.arcsin(radius / dist) * width / (2.0 * np.pi)
-        mid = (np.pi - np.arctan2(centre[1], centre[0])) * width / (2.0 * np.pi)
-        lo, hi = int(np.floor(mid - half)), int(np.ceil(mid + half))
-        return None if hi - lo + 1 >= width else np.arange(lo, hi + 1) % width
+    def _window(self, centre: np.ndarray, radius: float) -> np.ndarray | None:
+        """Columns (wrapped indices) whose rays pass within ``radius`` of ``centre`` (2,); None: all (also while
+        the columns' azimuths are not known)."""
+        return None if self.columns is None else self.columns.window(centre, radius)
 
     # ------------------------------------------------------------------ lock
 
@@ -375,7 +373,7 @@ class PerformerSegmenter:
         performer."""
         rows = np.flatnonzero(result.mask.any(axis=1))
         box = np.zeros(frame.shape, dtype=bool)
-        cols = self._window(result.position, half_width + 0.3, frame.shape[1])
+        cols = self._window(result.position, half_width + 0.3)
         box[max(rows[0] - 2, 0):rows[-1] + 3, slice(None) if cols is None else cols] = True
         reach = frame.range_m[result.mask].max() + self.config.link_m
         self.background.forget((box & (self.background.range < reach)) | result.mask)
@@ -454,7 +452,7 @@ class PerformerSegmenter:
         gate = min(cfg.gate_m + cfg.gate_growth_mps * unseen, cfg.reacquire_m)
         tracks = [performer, *self._others]
         predicted = np.array([t.predict(stamp, cfg.horizon_s) for t in tracks])
-        cols = self._window(predicted[0], max(cfg.window_m, gate + cfg.fragment_m), frame.shape[1])
+        cols = self._window(predicted[0], max(cfg.window_m, gate + cfg.fragment_m))
         range_m = frame.range_m if cols is None else frame.range_m[:, cols]
         nearer, unexplained = self.background.classify(range_m, slice(None) if cols is None else cols)
         cand = self._cluster(frame, cols, nearer | unexplained, nearer)
