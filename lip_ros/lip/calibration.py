@@ -70,6 +70,8 @@ __all__ = [
     "save_calibration",
     "load_calibration",
     "CalibrationDetector",
+    "MAX_SAMPLE_RATE_HZ",
+    "MAX_FRAME_RATE_HZ",
 ]
 
 CALIBRATION_VERSION = 1
@@ -78,6 +80,10 @@ POSES = ("a_pose", "t_pose")
 _UP_M = np.array([0.0, 1.0, 0.0])
 _UP = np.array([0.0, 0.0, 1.0])  # of I and of L
 _MIN_STILL_SAMPLES = 3  # per sensor in a stillness window
+#: More samples (frames) per second than any sensor (LiDAR) sends: with the detector's horizon, the bounds of its
+#: buffers whatever the stamps do.
+MAX_SAMPLE_RATE_HZ = 400.0
+MAX_FRAME_RATE_HZ = 50.0
 _ARM_ITERATIONS = 3  # re-selections of the arm points in heading_from_tpose
 
 
@@ -199,9 +205,13 @@ def save_calibration(calibration: Calibration, path: str | Path) -> None:
 
 
 def load_calibration(path: str | Path) -> Calibration:
-    """Read a calibration written by :func:`save_calibration`."""
+    """Read a calibration written by :func:`save_calibration`; OSError if unreadable, ValueError if it is not one."""
     with open(path, encoding="utf-8") as f:
-        return Calibration.from_dict(yaml.safe_load(f))
+        text = f.read()
+    try:
+        return Calibration.from_dict(yaml.safe_load(text))
+    except (yaml.YAMLError, AttributeError, TypeError, KeyError, IndexError, ValueError) as exc:
+        raise ValueError(f"{path} is not a lip_ros calibration: {exc}") from exc
 
 
 def pose_bone_rotations(skeleton: Skeleton, names: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -456,9 +466,11 @@ def calibrate(
 class CalibrationDetector:
     """Online calibration: feed samples and performer clouds as they come, call :meth:`update` now and then.
 
-    Keeps the last ``horizon_s`` of data; clouds are the performer's points (N, 3) in L with their
-    effective stamp, and those inside the detected T-pose window give the heading (with ``need_cloud``
-    it waits for them, else it assumes ``config.default_heading`` when there are none).
+    Keeps the last ``horizon_s`` of data (by stamp, and never more than ``horizon_s`` times
+    :data:`MAX_SAMPLE_RATE_HZ` samples per sensor or :data:`MAX_FRAME_RATE_HZ` clouds, whatever the
+    stamps do); clouds are the performer's points (N, 3) in L with their effective stamp, and those inside
+    the detected T-pose window give the heading (with ``need_cloud`` it waits for them, else it assumes
+    ``config.default_heading`` when there are none).
     """
 
     skeleton: Skeleton = field(default_factory=load_skeleton)
@@ -466,9 +478,17 @@ class CalibrationDetector:
     horizon_s: float = 60.0
     need_cloud: bool = True
     calibration: Calibration | None = None
-    status: str = "waiting for data"
+    status: str = "waiting for the calibration poses (A-pose, then T-pose, held still, facing the LiDAR)"
     _samples: dict[str, deque] = field(default_factory=dict, repr=False)
     _clouds: deque = field(default_factory=deque, repr=False)
+
+    def __post_init__(self) -> None:
+        self._clouds = deque(self._clouds, maxlen=int(self.horizon_s * MAX_FRAME_RATE_HZ))
+
+    @property
+    def max_buffered(self) -> int:
+        """The most samples kept per sensor (and clouds)."""
+        return int(self.horizon_s * MAX_SAMPLE_RATE_HZ)
 
     def _trim(self, queue: deque, newest_ns: int) -> None:
         while queue and queue[0][0] < newest_ns - self.horizon_s * 1e9:
@@ -478,7 +498,7 @@ class CalibrationDetector:
         """One sample of sensor ``name`` (R_I_S xyzw, rad/s and specific force in S); ignored once calibrated."""
         if self.calibration is not None:
             return
-        queue = self._samples.setdefault(name, deque())
+        queue = self._samples.setdefault(name, deque(maxlen=self.max_buffered))
         queue.append((int(stamp_ns), np.asarray(quat), np.asarray(gyro), np.asarray(accel)))
         self._trim(queue, int(stamp_ns))
 

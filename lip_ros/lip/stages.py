@@ -126,7 +126,8 @@ class ImuStage:
         #: Increases whenever the calibration changes (solved, reset): poses before and after do not chain.
         self.calibration_count = 0
         self._detector: CalibrationDetector | None = None
-        self._calibration_samples: list[tuple[str, ImuSampleLike]] = []  # kept, not yet shown to the detector
+        # kept for the calibration, not yet shown to the detector (bounded like the detector's own buffers)
+        self._calibration_samples: deque[tuple[str, ImuSampleLike]] = deque()
         self._pending: deque[_Waiting] = deque()
         if calibration is None:
             self.start_calibration()
@@ -147,6 +148,11 @@ class ImuStage:
         return len(self._pending)
 
     @property
+    def calibration_samples(self) -> int:
+        """IMU samples held for the calibration (not yet shown to its detector)."""
+        return len(self._calibration_samples)
+
+    @property
     def status(self) -> str:
         """A one-line description of the calibration state."""
         parts = []
@@ -159,7 +165,7 @@ class ImuStage:
     def start_calibration(self) -> None:
         """Look for a new A-pose / T-pose from now on; a current calibration stays in use until it is solved."""
         self._detector = CalibrationDetector(self.skeleton, self._calibration_config)
-        self._calibration_samples = []
+        self._calibration_samples = deque(maxlen=len(IMU_NAMES) * self._detector.max_buffered)
 
     def reset(self) -> None:
         """Forget the calibration (and remove its file, so a restart does not resume it) and look for a new one."""
@@ -187,9 +193,14 @@ class ImuStage:
         return reasons, done
 
     def _keep(self, name: str, sample: ImuSampleLike, reason: str | None) -> str | None:
-        """Remember a sample the synchroniser kept for the calibration, while one is being looked for."""
+        """Remember a sample the synchroniser kept for the calibration, while one is being looked for; samples
+        older than the detector's horizon are dropped (without performer frames nothing else would drop them)."""
         if reason is None and self._detector is not None:
-            self._calibration_samples.append((name, sample))
+            samples = self._calibration_samples
+            samples.append((name, sample))
+            oldest_ns = int(sample.stamp_ns) - int(self._detector.horizon_s * 1e9)
+            while samples[0][1].stamp_ns < oldest_ns:
+                samples.popleft()
         return reason
 
     def add_frame(self, frame_stamp_ns: int, pose_stamp_ns: int, points: np.ndarray, tag: Any = None
@@ -252,7 +263,7 @@ class ImuStage:
 
     def _try_calibrate(self, t_ns: int) -> None:
         """Show the detector the IMU samples stamped up to ``t_ns`` and try to calibrate."""
-        later = []
+        later = deque(maxlen=self._calibration_samples.maxlen)
         for name, sample in self._calibration_samples:
             if sample.stamp_ns <= t_ns:
                 self._detector.add_imu(name, sample.stamp_ns, sample.quat, sample.gyro, sample.accel)
@@ -264,7 +275,7 @@ class ImuStage:
             self.calibration = cal
             self.calibration_count += 1
             self._detector = None
-            self._calibration_samples = []
+            self._calibration_samples.clear()
             if self.calibration_file is not None:
                 save_calibration(cal, self.calibration_file)
 

@@ -10,10 +10,17 @@ latency percentiles, accuracy against ``/gt`` when IN has ground truth, and the
 wall time from the start of playback to the last pose as a multiple of real
 time (``--rate`` plays the bag faster). With ``--plot`` it also draws the
 trajectory and a few skeleton frames.
+
+The calibration the graph solves is written to ``OUT_calibration.yaml`` beside
+OUT. A file of that name left by an earlier run is never reused silently: the
+run refuses to start; ``--calibration FILE`` starts from a calibration on
+purpose (the graph then poses from the first frame, without the A/T-pose).
+The summary says which calibration the run used.
 """
 
 from __future__ import annotations
 
+import shutil
 import signal
 import subprocess
 import sys
@@ -34,6 +41,7 @@ from lip_msgs_py.stamps import NS_PER_S
 from lip_ros.bagio import bag_span, bag_topics, read_messages
 from lip_ros.core import metrics
 from lip_ros.core.rotations import quat_to_matrix
+from lip_ros.lip.calibration import load_calibration
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
@@ -57,6 +65,7 @@ class ProcessSummary:
     matched: int = 0  # poses with a /gt pose at the same stamp
     translation_cm: float | None = None
     mpjpe_mm: float | None = None  # root-relative, from /lip/joint_poses
+    calibration: str = ""  # which calibration the run used
     angular_deg: float | None = None  # mean geodesic error of the 24 global joint rotations
     bag_s: float | None = None  # duration of the input bag
     wall_s: float | None = None  # start of playback to the last pose (or the end of playback, if later)
@@ -73,6 +82,8 @@ class ProcessSummary:
         if self.translation_cm is not None:
             out.append(f"accuracy on {self.matched} frames vs /gt: root translation {self.translation_cm:.1f} cm, "
                        f"MPJPE {self.mpjpe_mm:.1f} mm, global angular error {self.angular_deg:.1f} deg")
+        if self.calibration:
+            out.append(f"calibration: {self.calibration}")
         if self.wall_s is not None and self.bag_s is not None:
             out.append(f"wall time (playback start -> last pose): {self.wall_s:.1f} s for {self.bag_s:.1f} s of bag, "
                        f"{self.bag_s / self.wall_s:.2f}x real time (--rate {self.rate:g})")
@@ -206,6 +217,20 @@ class _Watch:
         return max(self.last_clock, self.last_pose or 0.0) - self.started
 
 
+def _start_calibration(out: Path, given: Path | None) -> None:
+    """Prepare the graph's calibration file ``out``: refuse one left by an earlier run; copy ``given`` there."""
+    if out.exists():
+        raise ToolError(f"{out} exists, left by an earlier run: remove it, or start from it with "
+                        f"--calibration {out} (the run writes its own calibration there)")
+    if given is None:
+        return
+    try:
+        load_calibration(given)
+    except (OSError, ValueError) as exc:
+        raise ToolError(f"--calibration {given}: {exc}") from exc
+    shutil.copyfile(given, out)
+
+
 def _run(argv: list[str]) -> int:
     p = ArgumentParser(prog="lip_process_bag", description=__doc__.split("\n\n")[0])
     p.add_argument("inputs", type=Path, help="bag with /ouster/points and /dot/*/imu (and /gt/* if synthetic)")
@@ -214,6 +239,9 @@ def _run(argv: list[str]) -> int:
                    help="playback speed factor (default 1: real time; 3 plays the bag 3x faster)")
     p.add_argument("--plot", type=Path, help="write a PNG of the trajectory and skeleton frames here")
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the last frames after playback")
+    p.add_argument("--calibration", type=Path,
+                   help="start from this calibration (an earlier run's OUT_calibration.yaml) instead of finding one "
+                        "in the bag")
     args = p.parse_args(tool_args(argv))
     if not (args.inputs / "metadata.yaml").is_file():
         raise ToolError(f"{args.inputs} is not a rosbag2 bag directory")
@@ -224,10 +252,11 @@ def _run(argv: list[str]) -> int:
         raise ToolError(f"{args.inputs} has no {LIDAR_TOPIC}")
     if not args.rate > 0:
         raise ToolError(f"--rate must be > 0, got {args.rate}")
+    calibration = args.outputs.with_name(args.outputs.name + "_calibration.yaml")
+    _start_calibration(calibration, args.calibration)
     start_ros(argv)
     first_ns, last_ns = bag_span(args.inputs)
     watch = _Watch(first_ns, args.rate)
-    calibration = args.outputs.with_name(args.outputs.name + "_calibration.yaml")
     node = subprocess.Popen([installed_script("fusion_node"), "--ros-args", "-p", "use_sim_time:=true",
                              "-p", "diagnostics_period_s:=0.5", "-p", f"calibration_file:={calibration}"])
     recorder = subprocess.Popen([installed_script("lip_bag_record"), str(args.outputs), "--topics", *OUTPUTS],
@@ -249,6 +278,12 @@ def _run(argv: list[str]) -> int:
         watch.node.destroy_node()
     summary = summarize_outputs(args.inputs, args.outputs)
     summary.bag_s, summary.wall_s, summary.rate = (last_ns - first_ns) / NS_PER_S, watch.wall_s(), args.rate
+    if args.calibration is not None:
+        summary.calibration = f"loaded from {args.calibration} (copied to {calibration})"
+    elif calibration.is_file():
+        summary.calibration = f"solved from the bag's A-pose and T-pose, saved to {calibration}"
+    else:
+        summary.calibration = "none: no A-pose / T-pose calibration was found in the bag"
     print("\n".join(summary.lines()))
     if args.plot:
         print(f"plot: {plot_outputs(args.inputs, args.outputs, args.plot)}")

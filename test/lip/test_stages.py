@@ -7,12 +7,15 @@ import numpy as np
 import pytest
 from helpers import DEMO_BAG
 
+from lip_msgs_py import imu_sample
 from lip_ros.core.exact_sync import ExactTimeJoiner
 from lip_ros.lip.batch import replay_bag
+from lip_ros.lip.calibration import MAX_FRAME_RATE_HZ, MAX_SAMPLE_RATE_HZ, CalibrationDetector
 from lip_ros.lip.nets.config import LipConfig
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.nets.models import LipNet
 from lip_ros.lip.pipeline import LipPipeline, PipelineConfig
+from lip_ros.lip.sensors import IMU_NAMES
 from lip_ros.lip.stages import ImuStage, PoseStage
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -74,3 +77,29 @@ def test_pose_stage_starts_a_new_sequence_after_a_gap():
     assert stage.sequences == 2
     np.testing.assert_allclose(again.local_rot, outs[0].local_rot, atol=1e-6)  # fresh state: as the first frame
     assert not np.allclose(outs[1].local_rot, outs[0].local_rot, atol=1e-6)
+
+
+def test_without_the_calibration_poses_every_buffer_stays_bounded():
+    """Three minutes of the four DOTs and no performer frame (no calibration poses): the samples kept for the
+    calibration stay within the detector's horizon, and the state says what it waits for."""
+    stage = ImuStage()
+    rate_hz, minutes = 60.0, 3
+    for k in range(int(minutes * 60 * rate_hz)):
+        stamp = 1_000_000_000 + int(k * 1e9 / rate_hz)
+        for name in IMU_NAMES:
+            sample = imu_sample(stamp, name, [0.0, 0.0, 0.0, 1.0], [0.0] * 3, [0.0, 0.0, 9.81])
+            assert stage.add_imu(name, sample) is None
+    horizon_s = 60.0  # CalibrationDetector's default
+    assert stage.calibration_samples <= len(IMU_NAMES) * (horizon_s * rate_hz + 1)
+    assert stage.calibration_samples >= len(IMU_NAMES) * (horizon_s * rate_hz - 1)
+    assert not stage.calibrated and "waiting for the calibration poses" in stage.status
+
+
+def test_calibration_detector_stays_bounded_when_stamps_jump_back():
+    detector = CalibrationDetector(horizon_s=1.0)
+    for k in range(5000):
+        stamp = (k % 50) * 10_000_000  # the clock jumps back 0.5 s every 50 samples, for ever
+        detector.add_imu("left_wrist", stamp, np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(3))
+        detector.add_cloud(stamp, np.zeros((5, 3)))
+    assert len(detector._samples["left_wrist"]) <= detector.max_buffered == int(1.0 * MAX_SAMPLE_RATE_HZ)
+    assert len(detector._clouds) <= int(1.0 * MAX_FRAME_RATE_HZ)

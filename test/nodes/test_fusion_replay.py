@@ -89,3 +89,23 @@ def test_outputs_are_stamped_when_scanned_and_track_the_truth(replay: tuple[Path
     states = [msg_to_joint_state(m.msg, names) for m in read_messages(replay, ["/lip/joint_states"])]
     assert [s.stamp_ns for s in states] == [p.stamp_ns for p in poses]
     assert all(np.isfinite(s.positions).all() and len(s.positions) == 69 for s in states)
+
+
+def test_the_summary_says_which_calibration_was_used(replay: tuple[Path, str]) -> None:
+    out, stdout = replay
+    assert f"calibration: solved from the bag's A-pose and T-pose, saved to {out}_calibration.yaml" in stdout
+
+
+def test_a_calibration_left_by_an_earlier_run_is_never_reused_silently(tmp_path: Path) -> None:
+    out = tmp_path / "again"
+    stale = tmp_path / "again_calibration.yaml"
+    stale.write_text("version: 1\n")
+    proc = subprocess.run([console_script("lip_process_bag"), str(DEMO_BAG), str(out)], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 2 and f"{stale} exists, left by an earlier run" in proc.stderr
+    assert not out.exists() and stale.read_text() == "version: 1\n"  # nothing started, nothing overwritten
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("[not, a, calibration")
+    proc = subprocess.run([console_script("lip_process_bag"), str(DEMO_BAG), str(tmp_path / "other"), "--calibration",
+                           str(bad)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "is not a lip_ros calibration" in proc.stderr

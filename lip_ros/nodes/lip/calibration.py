@@ -182,6 +182,7 @@ class CalibrationNode(GraphNode):
         level = DiagnosticLevel.OK if self.stage.calibrated else DiagnosticLevel.WARN
         return level, self.stage.status, {"calibration": "calibrated" if self.stage.calibrated else "none",
                                           "pending": self.stage.pending, "bones with a held DOT sample": self._held,
+                                          "samples held for the calibration": self.stage.calibration_samples,
                                           "last sync": self._last_sync, **self._latency.values("latency_ms")}
 
 
