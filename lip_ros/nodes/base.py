@@ -50,7 +50,7 @@ from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import use_lip_dds_profile
 from lip_ros.resources import params_path
 
-__all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "GraphNode", "LatencyWindow", "RELIABLE",
+__all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "numbers", "GraphNode", "LatencyWindow", "RELIABLE",
            "BETWEEN_NODES", "IMU_INPUT", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals"]
 
 #: QoS of the graph's outputs.
@@ -76,11 +76,23 @@ class Param:
 
     description: str
     check: Callable[[Any], str | None] | None = None
+    any_type: bool = False  # e.g. a list whose default is empty ([] = none) and that a list of numbers overrides
 
 
 def positive(value: Any) -> str | None:
     """Check: a number > 0."""
     return None if value > 0 else f"must be > 0, got {value}"
+
+
+def numbers(*lengths: int) -> Callable[[Any], str | None]:
+    """Check: a list of finite numbers of one of these lengths."""
+
+    def check(value: Any) -> str | None:
+        ok = (isinstance(value, (list, tuple)) and len(value) in lengths
+              and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in value))
+        return None if ok else f"must be a list of {' or '.join(map(str, lengths))} finite numbers, got {value!r}"
+
+    return check
 
 
 def node_defaults(params_file: str, node_name: str) -> dict[str, Any]:
@@ -210,7 +222,7 @@ class GraphNode(Node):
         for name, spec in specs.items():
             try:
                 value = self.declare_parameter(name, defaults[name], ParameterDescriptor(
-                    description=spec.description)).value
+                    description=spec.description, dynamic_typing=spec.any_type)).value
             except (InvalidParameterTypeException, ParameterException) as exc:
                 problems.append(f"{name}: {exc}")
                 continue

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import rclpy
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from helpers import DEMO_BAG, console_script
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -99,6 +100,10 @@ def test_calibration_state_is_latched_and_controlled_by_services(ros_node, saved
     ("segmentation_node", ["-p", "lidar_rate_hz:=-1.0"], "lidar_rate_hz must be > 0"),
     ("segmentation_node", ["-p", "lidar_rate_hz:=fast"], "lidar_rate_hz"),
     ("calibration_node", ["-p", "imu_topics:=[/a, /b]"], "imu_topics needs 4 topics"),
+    ("segmentation_node", ["-p", "lock_rule:=wave"], "lock_rule must be one of t_pose, still"),
+    ("segmentation_node", ["-p", "lock_rule:=still"], "lock_rule 'still' needs expected_xy"),
+    ("segmentation_node", ["-p", "expected_xy:=[1.0]"], "expected_xy must be a list of 0 or 2 finite numbers"),
+    ("segmentation_node", ["-p", "ground_plane:=[0.0, 0.0, -1.0, 1.2]"], "needs a finite normal with a positive z"),
     ("fusion_node", ["--params-file", "BAD_PARAMS"], "unknown parameter(s) lidar_topics"),
 ])
 def test_bad_start_up_is_one_clear_line_and_exit_2(exe, args, message, tmp_path):
@@ -170,3 +175,19 @@ def test_a_restarted_graph_resumes_mid_capture(ros_node, tmp_path):
     assert all(abs(k - p.stamp_ns) < 1_000_000 for k, p in zip(nearest, after))  # truth of the same moment
     errors = [np.linalg.norm(p.position - truth[k]) for k, p in zip(nearest, after)]
     assert np.mean(errors) < 0.10, np.mean(errors)
+
+
+def test_segmentation_lock_parameters_are_taken(ros_node):
+    """The lock rule, the expected position (integers are numbers too) and a given ground plane start the node."""
+    statuses = []
+    sub = ros_node.create_subscription(DiagnosticArray, "/diagnostics",
+                                       lambda m: statuses.extend(s.name for s in m.status), 10)
+    proc = _start("segmentation_node", "-p", "lock_rule:=still", "-p", "expected_xy:=[8, 0]",
+                  "-p", "ground_plane:=[0.0, 0.0, 1.0, 1.2]", "-p", "diagnostics_period_s:=0.3")
+    try:
+        _spin_until(ros_node, lambda: "segmentation_node: frames" in statuses, proc)  # started, and running
+    finally:
+        ros_node.destroy_subscription(sub)
+        proc.kill()
+        out = proc.communicate(timeout=30)[0]
+    assert "Traceback" not in out and "parameter error" not in out, out

@@ -9,6 +9,7 @@ import yaml
 from lip_ros.core.imu_sync import SyncConfig
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.lip.pipeline import PipelineConfig
+from lip_ros.lip.segmentation import SegmentationConfig
 from lip_ros.lip.sensors import IMU_NAMES, IMU_TOPICS, LIDAR_TOPIC
 from lip_ros.lip.stages import MAX_PENDING_FRAMES, MAX_POSE_GAP_NS, ImuStage, PoseStage
 from lip_ros.nodes.base import ParameterError, check_params_files, node_defaults
@@ -52,6 +53,11 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults():
     assert round(cal["imu_wait_s"] * NS) == sync.wait_ns
     assert cal["max_pending_frames"] == MAX_PENDING_FRAMES == PipelineConfig().max_pending_frames
     assert round(pose["max_pose_gap_s"] * NS) == MAX_POSE_GAP_NS
+    seg, segmentation = node_defaults(LIP_PARAMS_FILE, "segmentation_node"), SegmentationConfig()
+    assert seg["lock_rule"] == segmentation.lock_rule
+    assert (tuple(seg["expected_xy"]) or None) == segmentation.expected_xy
+    assert seg["expected_radius_m"] == segmentation.expected_radius_m
+    assert (tuple(seg["ground_plane"]) or None) == segmentation.ground_plane
     # the stages take those constants as their defaults
     assert ImuStage.__init__.__defaults__[-1] == MAX_PENDING_FRAMES
     assert PoseStage.__init__.__defaults__[-1] == MAX_POSE_GAP_NS

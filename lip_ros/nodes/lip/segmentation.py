@@ -24,8 +24,18 @@ import yaml
 from sensor_msgs.msg import PointCloud2
 
 from lip_msgs_py import DiagnosticLevel, MalformedMessageError, cloud_to_array, read_header, xyz_to_cloud
-from lip_ros.lip.segmentation import PerformerSegmenter, SegmentationConfig, SegmentationStatus
-from lip_ros.nodes.base import BETWEEN_NODES, FrameArrivals, GraphNode, LatencyWindow, Param, run_nodes
+from lip_ros.lip.segmentation import LOCK_RULES, PerformerSegmenter, SegmentationConfig, SegmentationStatus
+from lip_ros.nodes.base import (
+    BETWEEN_NODES,
+    FrameArrivals,
+    GraphNode,
+    LatencyWindow,
+    Param,
+    ParameterError,
+    numbers,
+    positive,
+    run_nodes,
+)
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
 
 __all__ = ["SegmentationNode", "main"]
@@ -42,13 +52,28 @@ class SegmentationNode(GraphNode):
         "performer_topic": Param("output: the performer's points, stamped with the pose time"),
         "performer_file": Param("the performer's last position: read at start to resume, written while tracking "
                                 "('' = none)"),
+        "lock_rule": Param("how the performer is found: " + ", ".join(LOCK_RULES) + " (t_pose: the calibration's "
+                           "T-pose; still: standing still near expected_xy)",
+                           lambda v: None if v in LOCK_RULES else f"must be one of {', '.join(LOCK_RULES)}, got {v!r}"),
+        "expected_xy": Param("where the performer calibrates, [x, y] m in the LiDAR frame ([] = anywhere)",
+                             numbers(0, 2), any_type=True),
+        "expected_radius_m": Param("the performer is looked for within this of expected_xy", positive),
+        "ground_plane": Param("the ground, [a, b, c, d] with a x + b y + c z + d = 0 in the LiDAR frame "
+                              "([] = fitted to the first frame)", numbers(0, 4), any_type=True),
     }
 
     def __init__(self, arrivals: FrameArrivals | None = None, **kwargs: Any) -> None:
         super().__init__(self.NAME, **kwargs)
         p = self.params
         self._performer_file = Path(p["performer_file"]).expanduser() if p["performer_file"] else None
-        self._segmenter = PerformerSegmenter(SegmentationConfig(resume_xy=self._read_position()))
+        try:
+            config = SegmentationConfig(
+                lock_rule=p["lock_rule"], expected_xy=tuple(map(float, p["expected_xy"])) or None,
+                expected_radius_m=p["expected_radius_m"], ground_plane=tuple(map(float, p["ground_plane"])) or None,
+                resume_xy=self._read_position())
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from exc
+        self._segmenter = PerformerSegmenter(config)
         self._saved_at = 0.0
         self._arrivals = arrivals
         self._latency = LatencyWindow()
