@@ -19,11 +19,13 @@ from lip_ros.rig.lidar import Actor, Frame, OusterModel
 from lip_ros.rig.motion import PerformerMotion, make_motion
 from lip_ros.rig.scene import KeepOut, Scene
 
-__all__ = ["CaptureConfig", "GroundTruth", "CaptureFrame", "CaptureSession", "EPOCH_NS"]
+__all__ = ["CaptureConfig", "GroundTruth", "CaptureFrame", "CaptureSession", "EPOCH_NS", "SENSORS"]
 
 #: Capture clock origin of rig captures: 2026-01-01T00:00:00Z (fixed, so a seed gives identical bags).
 EPOCH_NS = 1_767_225_600 * 1_000_000_000
-_SENSORS = {"os1-128": OusterModel.os1_128, "os1-64": OusterModel.os1_64}
+#: The Ouster models the rig simulates, by name.
+SENSORS = {"os1-128": OusterModel.os1_128, "os1-64": OusterModel.os1_64, "os0-128": OusterModel.os0_128,
+           "os2-128": OusterModel.os2_128}
 
 
 @dataclass(frozen=True)
@@ -49,8 +51,8 @@ class CaptureConfig:
     imu_noise: bool = True
 
     def __post_init__(self) -> None:
-        if self.sensor not in _SENSORS:
-            raise ValueError(f"sensor must be one of {sorted(_SENSORS)}, not {self.sensor!r}")
+        if self.sensor not in SENSORS:
+            raise ValueError(f"sensor must be one of {sorted(SENSORS)}, not {self.sensor!r}")
         if not 2.0 <= self.distance_m <= 100.0:
             raise ValueError(f"distance_m must be in [2, 100], not {self.distance_m}")
         if self.seconds <= 0 or self.rate_hz <= 0:
@@ -129,7 +131,7 @@ class CaptureSession:
                                       ground_z)
         else:
             self.scene = Scene(ground_z=ground_z)
-        self.lidar = _SENSORS[cfg.sensor](columns=cfg.columns, rate_hz=cfg.rate_hz,
+        self.lidar = SENSORS[cfg.sensor](columns=cfg.columns, rate_hz=cfg.rate_hz,
                                           azimuth_window_deg=cfg.azimuth_window_deg,
                                           column0_azimuth_deg=cfg.column0_azimuth_deg,
                                           beam_azimuth_deg=tuple(cfg.beam_azimuth_deg))

@@ -133,6 +133,16 @@ class OusterModel:
         """OS1-64, the hip-worn sensor of the HSC4D branch."""
         return cls(beams=64, columns=columns, rate_hz=rate_hz, **kwargs)
 
+    @classmethod
+    def os0_128(cls, columns: int = 1024, rate_hz: float = 10.0, **kwargs) -> OusterModel:
+        """OS0-128: 90 deg vertical field of view, shorter range."""
+        return cls(beams=128, columns=columns, rate_hz=rate_hz, vertical_fov_deg=90.0, max_range=50.0, **kwargs)
+
+    @classmethod
+    def os2_128(cls, columns: int = 1024, rate_hz: float = 10.0, **kwargs) -> OusterModel:
+        """OS2-128: 22.5 deg vertical field of view, longer range."""
+        return cls(beams=128, columns=columns, rate_hz=rate_hz, vertical_fov_deg=22.5, max_range=240.0, **kwargs)
+
     @property
     def shape(self) -> tuple[int, int]:
         """(H, W) of a frame."""

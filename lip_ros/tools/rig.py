@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from lip_ros.rig.capture import CaptureConfig, CaptureSession
+from lip_ros.rig.capture import SENSORS, CaptureConfig, CaptureSession
 from lip_ros.rig.motion import SCENARIOS
 
 
@@ -57,7 +57,7 @@ def parser() -> argparse.ArgumentParser:
     m.add_argument("--out", type=Path, required=True, help="bag directory to create")
     m.add_argument("--distance", type=float, default=8.0, help="LiDAR to capture-area centre (m)")
     m.add_argument("--bearing", type=float, default=0.0, help="azimuth of the capture area in os_lidar (deg)")
-    m.add_argument("--sensor", choices=("os1-128", "os1-64"), default="os1-128")
+    m.add_argument("--sensor", choices=sorted(SENSORS), default=CaptureConfig.sensor)
     m.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=1024)
     m.add_argument("--azimuth-window", type=float, nargs=2, metavar=("START", "END"),
                    help="Ouster azimuth window in encoder degrees from column 0, in sweep order (with the default "

@@ -192,43 +192,44 @@ def test_point_cloud_message_gives_the_same_result():
     assert all(runs["message"].masks_equal) and runs["message"].status == runs["all"].status
 
 
-#: Sensor conventions the rig's own default (column 0 along -x) does not cover: (column 0 azimuth deg, per-row
-#: azimuth offsets deg, bearing of the performer deg). ouster-ros's os_lidar (column 0 along +x) with the performer
-#: straight ahead, where the sweep starts and ends (the seam), and to the side; a mounting yaw; the sub-column
-#: azimuth differences between the rows that a destaggered Ouster cloud keeps.
-CONVENTIONS = {
-    "os_lidar, ahead (seam)": (0.0, (), 0.0),
-    "os_lidar, side": (0.0, (), 120.0),
-    "mounting yaw 37": (37.0, (), -60.0),
-    "destagger residual": (180.0, (0.15, -0.05, 0.1, -0.15), 30.0),
+#: Sensors and conventions the rig's own default (an OS1-128, column 0 along -x) does not cover: CaptureConfig
+#: changes. ouster-ros's os_lidar (column 0 along +x) with the performer straight ahead, where the sweep starts and
+#: ends (the seam), and to the side; a mounting yaw; the sub-column azimuth differences between the rows that a
+#: destaggered Ouster cloud keeps; an OS0-128 (90 deg field of view), an OS2-128 (22.5 deg) and an OS1-64.
+SENSOR_VARIANTS = {
+    "os_lidar, ahead (seam)": {"column0_azimuth_deg": 0.0},
+    "os_lidar, side": {"column0_azimuth_deg": 0.0, "bearing_deg": 120.0},
+    "mounting yaw 37": {"column0_azimuth_deg": 37.0, "bearing_deg": -60.0},
+    "destagger residual": {"beam_azimuth_deg": (0.15, -0.05, 0.1, -0.15), "bearing_deg": 30.0},
+    "os0-128": {"sensor": "os0-128"},
+    "os2-128": {"sensor": "os2-128", "bearing_deg": -30.0},
+    "os1-64": {"sensor": "os1-64", "rate_hz": 10.0, "column0_azimuth_deg": 0.0, "bearing_deg": 60.0},
 }
 
 
 @functools.cache
-def convention_run(name: str) -> tuple[CaptureSession, Run, PerformerSegmenter]:
-    """A 13 s walk at 8 m (clutter, bystander) recorded with the sensor convention ``name``, segmented."""
-    column0, beams, bearing = CONVENTIONS[name]
+def variant_run(name: str) -> tuple[CaptureSession, Run, PerformerSegmenter]:
+    """A 13 s walk at 8 m (clutter, bystander) recorded with the sensor variant ``name``, segmented."""
     session = CaptureSession(CaptureConfig(scenario="walk", seconds=SECONDS, seed=SEED, columns=1024, distance_m=8.0,
-                                           bearing_deg=bearing, column0_azimuth_deg=column0, beam_azimuth_deg=beams,
-                                           clutter=True, second_person=True))
+                                           clutter=True, second_person=True, **SENSOR_VARIANTS[name]))
     segmenter, run = PerformerSegmenter(), Run()
     for cf in session.frames():
         run.record(segmenter.process(cf.frame.points, cf.stamp_ns), cf.frame.labels)
     return session, run, segmenter
 
 
-@pytest.mark.parametrize("name", sorted(CONVENTIONS))
-def test_any_column_convention_and_mounting_yaw(name):
-    """Where column 0 looks is derived from the cloud: the performer is tracked as with the rig's default."""
-    session, run, segmenter = convention_run(name)
-    column0, beams, _ = CONVENTIONS[name]
-    columns = segmenter.columns
-    assert columns.direction == -1  # an Ouster sweeps clockwise seen from above
-    true = column0 + (np.resize(beams, 128) if beams else np.zeros(128))  # where column 0 of each row looks
-    fitted = np.degrees(columns.column0_rad + columns.row_offset_rad)
-    seen = columns.row_offset_rad != 0.0
-    assert seen.sum() >= 64  # rows with returns (the highest look at the sky)
+@pytest.mark.parametrize("name", sorted(SENSOR_VARIANTS))
+def test_any_sensor_model_column_convention_and_mounting_yaw(name):
+    """Where rows and columns look is derived from the cloud: the performer is tracked as with the rig's default."""
+    session, run, segmenter = variant_run(name)
+    layout, lidar = segmenter.layout, session.lidar
+    assert layout.direction == -1  # an Ouster sweeps clockwise seen from above
+    true = np.degrees(lidar.azimuth[0] + lidar.beam_offset)  # where column 0 of each row looks
+    seen = np.isfinite(layout.row_elevation_rad)
+    assert seen.sum() >= lidar.beams // 2  # rows with returns (the highest look at the sky)
+    fitted = np.degrees(layout.column0_rad + layout.row_offset_rad)
     np.testing.assert_allclose(((fitted - true + 180.0) % 360.0 - 180.0)[seen], 0.0, atol=0.05)
+    np.testing.assert_allclose(layout.row_elevation_rad[seen], lidar.elevation[seen], atol=np.radians(0.05))
     precision, recall = run.mean_scores()
     assert precision >= MIN_SCORE and recall >= MIN_SCORE, (precision, recall)
     phases = {name: (start, end) for name, start, end in session.phases_ns()}

@@ -59,7 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lip_ros.core.lidar_columns import ColumnAzimuths, fit_column_azimuths
+from lip_ros.core.scan_layout import ScanLayout, fit_scan_layout
 from lip_ros.lip.segmentation.clusters import Clusters, describe_clusters, link_components
 from lip_ros.lip.segmentation.scene import BackgroundModel, GroundPlane, fit_ground_plane
 from lip_ros.lip.segmentation.tracking import Track, associate
@@ -89,7 +89,6 @@ class SegmentationConfig:
     link_m: float = 0.2  # neighbours join if closer than link_m + link_spacing * (their beam spacing at the range)
     link_spacing: float = 1.5
     link_reach: int = 2  # neighbours up to this many rows / columns apart
-    vertical_fov_deg: float = 45.0  # OS1: +22.5 .. -22.5, rows uniform
     # human size (lock, new bystanders, re-acquisition)
     min_points: int = 10
     min_top_m: float = 0.8  # highest point above the ground
@@ -215,7 +214,7 @@ class PerformerSegmenter:
             None if cfg.ground_plane is None else GroundPlane.from_coefficients(cfg.ground_plane)
         )
         self.background: BackgroundModel | None = None
-        self.columns: ColumnAzimuths | None = None  # where each column looks, fitted to the first frames
+        self.layout: ScanLayout | None = None  # where the rows and columns look, fitted to the first frame
         self.performer: Track | None = None
         self._others: list[Track] = []
         self._last_stamp_ns: int | None = None
@@ -243,12 +242,15 @@ class PerformerSegmenter:
             cfg = self.config
             self.background = BackgroundModel(shape, cfg.margin_m, cfg.margin_per_m, cfg.confirm_frames,
                                               cfg.absorb_frames)
-        if self.columns is None:  # until a frame gives a fit, windows are every column (slower, still right)
-            self.columns = fit_column_azimuths(points["x"], points["y"])
+        if self.layout is None:
+            self.layout = fit_scan_layout(points["x"], points["y"], points["z"])
         if self.ground is None:
             self.ground = self._fit_ground(frame)
         if self.ground is None:
             result = self._empty(SegmentationStatus.NO_PERFORMER, "no ground plane found yet", stamp, shape)
+        elif self.layout is None:
+            result = self._empty(SegmentationStatus.NO_PERFORMER, "the cloud's rows and columns fit no spinning "
+                                 "LiDAR's scan yet (too few returns, or not an organized cloud)", stamp, shape)
         elif self.performer is None:
             result = self._acquire(frame, stamp)
         else:
@@ -323,7 +325,7 @@ class PerformerSegmenter:
         rows, sub, flat, xyz = rows[ok], sub[ok], flat[ok], xyz[ok]
         cfg = self.config
         grid = (height, width if cols is None else len(cols))
-        angles = (np.deg2rad(cfg.vertical_fov_deg) / max(height - 1, 1), 2.0 * np.pi / width)
+        angles = (self.layout.row_spacing_rad, 2.0 * np.pi / width)
         labels, k = link_components(rows, sub, xyz, frame.range_m.reshape(-1)[flat], grid, cols is None, angles,
                                     cfg.link_m, cfg.link_spacing, cfg.link_reach)
         return _Candidates(flat, xyz, describe_clusters(labels, k, xyz, self.ground.height(xyz)))
@@ -333,11 +335,6 @@ class PerformerSegmenter:
         cfg = self.config
         return ((c.count >= cfg.min_points) & (c.top >= cfg.min_top_m) & (c.top <= cfg.max_top_m)
                 & (c.bottom <= cfg.max_bottom_m) & (c.width <= cfg.max_width_m) & (c.depth <= cfg.max_depth_m))
-
-    def _window(self, centre: np.ndarray, radius: float) -> np.ndarray | None:
-        """Columns (wrapped indices) whose rays pass within ``radius`` of ``centre`` (2,); None: all (also while
-        the columns' azimuths are not known)."""
-        return None if self.columns is None else self.columns.window(centre, radius)
 
     # ------------------------------------------------------------------ lock
 
@@ -373,7 +370,7 @@ class PerformerSegmenter:
         performer."""
         rows = np.flatnonzero(result.mask.any(axis=1))
         box = np.zeros(frame.shape, dtype=bool)
-        cols = self._window(result.position, half_width + 0.3)
+        cols = self.layout.window(result.position, half_width + 0.3)
         box[max(rows[0] - 2, 0):rows[-1] + 3, slice(None) if cols is None else cols] = True
         reach = frame.range_m[result.mask].max() + self.config.link_m
         self.background.forget((box & (self.background.range < reach)) | result.mask)
@@ -452,7 +449,7 @@ class PerformerSegmenter:
         gate = min(cfg.gate_m + cfg.gate_growth_mps * unseen, cfg.reacquire_m)
         tracks = [performer, *self._others]
         predicted = np.array([t.predict(stamp, cfg.horizon_s) for t in tracks])
-        cols = self._window(predicted[0], max(cfg.window_m, gate + cfg.fragment_m))
+        cols = self.layout.window(predicted[0], max(cfg.window_m, gate + cfg.fragment_m))
         range_m = frame.range_m if cols is None else frame.range_m[:, cols]
         nearer, unexplained = self.background.classify(range_m, slice(None) if cols is None else cols)
         cand = self._cluster(frame, cols, nearer | unexplained, nearer)

@@ -125,10 +125,10 @@ class SegmentationNode(GraphNode):
     def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
         """Level, message and values of the frames status: the last frame's segmentation state."""
         level = DiagnosticLevel.OK if self._last_status == SegmentationStatus.OK.value else DiagnosticLevel.WARN
-        columns = self._segmenter.columns
+        layout = self._segmenter.layout
         return level, self._last_status, {"performer clouds published": self._latency.count,
                                           "performer locked": self._segmenter.locked,
-                                          "columns": "not derived yet" if columns is None else columns.describe(),
+                                          "scan layout": "not derived yet" if layout is None else layout.describe(),
                                           **self._latency.values("latency_ms")}
 
 

@@ -1,28 +1,29 @@
-"""Column azimuths derived from the cloud: any column-0 azimuth, either sweep direction, per-row offsets,
-windows that cover what the rays see, and clouds that fit no sweep."""
+"""The scan layout derived from the cloud: any column-0 azimuth, either sweep direction, per-row offsets, the
+rows' elevations of OS0, OS1 and OS2 models, windows that cover what the rays see, and clouds that fit no sweep."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lip_ros.core.lidar_columns import fit_column_azimuths
+from lip_ros.core.scan_layout import fit_scan_layout
 from lip_ros.rig.lidar import OusterModel
 
 
-def _cloud(lidar: OusterModel, rng: np.random.Generator, valid: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
-    """x, y (H, W) of the lidar's rays at random ranges, NaN where there is no return."""
+def _cloud(lidar: OusterModel, rng: np.random.Generator, valid: float = 0.6
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x, y, z (H, W) of the lidar's rays at random ranges, NaN where there is no return."""
     d = lidar.directions
     points = d * rng.uniform(1.0, 40.0, d.shape[:2])[..., None]
     points[rng.random(d.shape[:2]) > valid] = np.nan
-    return points[..., 0], points[..., 1]
+    return points[..., 0], points[..., 1], points[..., 2]
 
 
 @pytest.mark.parametrize("column0", [180.0, 0.0, 37.0, -123.0])
 @pytest.mark.parametrize("columns", [512, 1024, 2048])
 def test_fit_finds_column0_and_the_clockwise_sweep(column0, columns):
     lidar = OusterModel.os1_128(columns=columns, column0_azimuth_deg=column0)
-    fit = fit_column_azimuths(*_cloud(lidar, np.random.default_rng(columns)))
+    fit = fit_scan_layout(*_cloud(lidar, np.random.default_rng(columns)))
     assert fit is not None and fit.direction == -1 and fit.width == columns and fit.agreement > 0.999
     assert abs((np.degrees(fit.column0_rad) - column0 + 180.0) % 360.0 - 180.0) < 1e-3
     np.testing.assert_allclose(fit.row_offset_rad, 0.0, atol=1e-6)
@@ -33,8 +34,8 @@ def test_fit_finds_column0_and_the_clockwise_sweep(column0, columns):
 def test_fit_finds_a_counter_clockwise_sweep_and_row_offsets():
     offsets = (0.3, -0.1, 0.2, -0.4)
     lidar = OusterModel.os1_64(column0_azimuth_deg=90.0, beam_azimuth_deg=offsets)
-    x, y = _cloud(lidar, np.random.default_rng(1))
-    fit = fit_column_azimuths(x, -y)  # mirrored: azimuth grows with the column
+    x, y, z = _cloud(lidar, np.random.default_rng(1))
+    fit = fit_scan_layout(x, -y, z)  # mirrored: azimuth grows with the column
     assert fit.direction == 1
     true = np.radians(-90.0 - np.resize(offsets, 64))  # where column 0 of each row looks, mirrored
     got = fit.column0_rad + fit.row_offset_rad
@@ -44,7 +45,7 @@ def test_fit_finds_a_counter_clockwise_sweep_and_row_offsets():
 @pytest.mark.parametrize("column0, centre", [(0.0, (8.0, 0.3)), (180.0, (-3.0, 6.0)), (37.0, (2.0, -15.0))])
 def test_window_holds_every_column_whose_rays_pass_near(column0, centre):
     lidar = OusterModel.os1_128(columns=1024, column0_azimuth_deg=column0, beam_azimuth_deg=(0.15, -0.05, 0.1))
-    fit = fit_column_azimuths(*_cloud(lidar, np.random.default_rng(7)))
+    fit = fit_scan_layout(*_cloud(lidar, np.random.default_rng(7)))
     radius = 1.2
     d = lidar.directions[..., :2]
     horizontal = d / np.linalg.norm(d, axis=-1, keepdims=True)
@@ -57,13 +58,25 @@ def test_window_holds_every_column_whose_rays_pass_near(column0, centre):
 
 
 def test_window_is_every_column_around_the_sensor():
-    fit = fit_column_azimuths(*_cloud(OusterModel.os1_128(), np.random.default_rng(3)))
+    fit = fit_scan_layout(*_cloud(OusterModel.os1_128(), np.random.default_rng(3)))
     assert fit.window(np.array([0.5, 0.2]), 1.0) is None
 
 
 def test_clouds_that_fit_no_sweep_give_none():
     rng = np.random.default_rng(5)
-    assert fit_column_azimuths(rng.normal(size=(64, 512)), rng.normal(size=(64, 512))) is None  # unorganized
-    x, y = _cloud(OusterModel.os1_64(columns=512), rng, valid=0.001)
-    assert fit_column_azimuths(x, y) is None  # too few returns
-    assert fit_column_azimuths(np.full((4, 8), np.nan), np.full((4, 8), np.nan)) is None
+    assert fit_scan_layout(*rng.normal(size=(3, 64, 512))) is None  # unorganized
+    assert fit_scan_layout(*_cloud(OusterModel.os1_64(columns=512), rng, valid=0.001)) is None  # too few returns
+    assert fit_scan_layout(*np.full((3, 4, 8), np.nan)) is None
+    x, y, z = _cloud(OusterModel.os1_64(columns=512), rng)
+    x[1::2], y[1::2], z[1::2] = np.nan, np.nan, np.nan  # every other row dark: no two neighbouring rows
+    assert fit_scan_layout(x, y, z) is None
+
+
+@pytest.mark.parametrize("model, fov_deg", [(OusterModel.os1_128, 45.0), (OusterModel.os0_128, 90.0),
+                                            (OusterModel.os2_128, 22.5), (OusterModel.os1_64, 45.0)])
+def test_rows_elevations_and_spacing_of_each_model(model, fov_deg):
+    lidar = model(columns=512)
+    fit = fit_scan_layout(*_cloud(lidar, np.random.default_rng(2)))
+    np.testing.assert_allclose(fit.row_elevation_rad, lidar.elevation, atol=1e-6)
+    assert np.degrees(fit.row_spacing_rad) == pytest.approx(fov_deg / (lidar.beams - 1), rel=1e-4)
+    assert "between rows" in fit.describe()

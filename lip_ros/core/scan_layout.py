@@ -1,0 +1,124 @@
+"""Where the rows and columns of an organized spinning-LiDAR cloud look, derived from the cloud itself.
+
+Drivers, models and mountings disagree on it: ouster-ros's ``os_lidar`` frame
+has column 0 of a destaggered cloud looking along +x and the sweep clockwise
+seen from above; the project's rig has column 0 along -x; a mounting yaw turns
+both; the rows of a destaggered Ouster cloud look a fraction of a column apart
+in azimuth; an OS0 spreads its beams over 90 degrees of elevation, an OS1 over
+45, an OS2 over 22.5. So nothing assumes a convention or a model:
+:func:`fit_scan_layout` finds, from the valid points of one frame, the sweep
+direction, the azimuth of column 0, each row's azimuth offset and each row's
+elevation, and :class:`ScanLayout` answers which columns can see a place and
+how far apart neighbouring rows look.
+
+Model: the ray of row i, column j looks at azimuth
+``column0 + row_offset[i] + direction * 2 pi j / W`` (radians, about the
+cloud's z axis) and elevation ``row_elevation[i]``. The fit takes the circular
+mean of ``azimuth(point) - direction * 2 pi j / W`` for both directions and
+keeps the one whose residuals agree (a sharp circular mean); the residual's
+mean per row is that row's offset; a row's elevation is the median over its
+points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ScanLayout", "fit_scan_layout", "MIN_AGREEMENT"]
+
+#: Mean resultant length the residual azimuths must reach for a fit (1: every point agrees exactly; noise and
+#: row offsets of a fraction of a degree leave > 0.99; the wrong sweep direction gives about 0).
+MIN_AGREEMENT = 0.9
+_MAX_POINTS = 20000  # points used by a fit (evenly subsampled)
+_MIN_POINTS = 100
+
+
+def _wrap(angle: np.ndarray | float) -> np.ndarray | float:
+    """Angles to [-pi, pi)."""
+    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@dataclass(frozen=True)
+class ScanLayout:
+    """Where the rows and columns of a (H, W) cloud look (see the module docstring)."""
+
+    width: int
+    column0_rad: float  # azimuth of column 0, averaged over the rows that have returns
+    direction: int  # +1: azimuth grows with the column (counter-clockwise seen from above), -1: clockwise
+    row_offset_rad: np.ndarray  # (H,) each row's azimuth offset from column0_rad (0 for rows without returns)
+    row_elevation_rad: np.ndarray  # (H,) each row's elevation (NaN for rows without returns)
+    agreement: float  # mean resultant length of the azimuth fit's residuals (1 = exact)
+
+    @property
+    def row_spacing_rad(self) -> float:
+        """The typical elevation step between neighbouring rows (median over neighbours that both have returns)."""
+        steps = np.abs(np.diff(self.row_elevation_rad))
+        return float(np.median(steps[np.isfinite(steps)]))
+
+    def column(self, azimuth: float) -> float:
+        """The fractional column in [0, W) whose rays, averaged over the rows, look at ``azimuth`` (rad)."""
+        return float(self.direction * _wrap(azimuth - self.column0_rad) * self.width / (2.0 * np.pi)) % self.width
+
+    def window(self, centre_xy: np.ndarray, radius: float) -> np.ndarray | None:
+        """Columns (indices in sweep order, wrapping) of every row whose ray passes within ``radius`` of the
+        point ``centre_xy`` (2,) seen from above; None when that is every column."""
+        dist = float(np.hypot(centre_xy[0], centre_xy[1]))
+        if dist <= radius:
+            return None
+        per_rad = self.width / (2.0 * np.pi)
+        half = np.arcsin(radius / dist) * per_rad
+        mid = self.column(float(np.arctan2(centre_xy[1], centre_xy[0])))
+        shifts = -self.direction * self.row_offset_rad * per_rad  # where each row sees that azimuth, vs the mean
+        lo, hi = int(np.floor(mid + shifts.min() - half)), int(np.ceil(mid + shifts.max() + half))
+        return None if hi - lo + 1 >= self.width else np.arange(lo, hi + 1) % self.width
+
+    def describe(self) -> str:
+        """One line: where column 0 looks, which way the sweep turns, the rows' field of view."""
+        sweep = "clockwise" if self.direction < 0 else "counter-clockwise"
+        elevation = np.degrees(self.row_elevation_rad[np.isfinite(self.row_elevation_rad)])
+        return (f"column 0 looks at azimuth {np.degrees(self.column0_rad):.1f} deg, sweep {sweep} seen from above; "
+                f"rows {np.degrees(np.ptp(self.row_offset_rad)):.2f} deg apart in azimuth, elevations "
+                f"{elevation.max():+.1f} .. {elevation.min():+.1f} deg, {np.degrees(self.row_spacing_rad):.2f} deg "
+                f"between rows")
+
+
+def fit_scan_layout(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> ScanLayout | None:
+    """The layout of one organized frame from its points' x, y and z (H, W) (NaN where there is no return); None
+    if too few points, or if they fit no sweep (not an organized spinning-LiDAR cloud)."""
+    height, width = x.shape
+    rows, cols = np.nonzero(np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & ((x != 0.0) | (y != 0.0)))
+    if len(rows) < _MIN_POINTS:
+        return None
+    step = max(len(rows) // _MAX_POINTS, 1)
+    rows, cols = rows[::step], cols[::step]
+    px, py, pz = (np.asarray(a[rows, cols], dtype=np.float64) for a in (x, y, z))
+    azimuth = np.arctan2(py, px)
+    encoder = 2.0 * np.pi * cols / width
+    best = None
+    for direction in (-1, 1):
+        phasor = np.exp(1j * (azimuth - direction * encoder))
+        mean = phasor.mean()
+        if best is None or abs(mean) > abs(best[1]):
+            best = (direction, mean, phasor)
+    direction, mean, phasor = best
+    if abs(mean) < MIN_AGREEMENT:
+        return None
+    column0 = float(np.angle(mean))
+    residual = phasor * np.exp(-1j * column0)
+    per_row = (np.bincount(rows, residual.real, minlength=height)
+               + 1j * np.bincount(rows, residual.imag, minlength=height))  # sums per row
+    seen = np.abs(per_row) > 0.0
+    offsets = np.where(seen, np.angle(per_row), 0.0)
+    centre = float(np.angle(np.exp(1j * offsets[seen]).mean()))  # column 0 as the mean of the rows, not the points
+    offsets = np.where(seen, _wrap(offsets - centre), 0.0)
+    elevation = np.arctan2(pz, np.hypot(px, py))
+    order = np.lexsort((elevation, rows))  # by row, then elevation: each row's median from its sorted run
+    starts = np.searchsorted(rows[order], np.arange(height))
+    counts = np.bincount(rows, minlength=height)
+    row_elevation = np.full(height, np.nan)
+    row_elevation[seen] = elevation[order][starts[seen] + counts[seen] // 2]
+    if np.count_nonzero(np.isfinite(np.diff(row_elevation))) == 0:
+        return None  # no two neighbouring rows with returns: the rows' spacing is unknown
+    return ScanLayout(width, float(_wrap(column0 + centre)), direction, offsets, row_elevation, float(abs(mean)))
