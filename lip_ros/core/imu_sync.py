@@ -88,9 +88,11 @@ class SyncConfig:
     settle_ns: int = 0  # ready() wants data this far past t (reordering in transport + a period)
     wait_ns: int = 200_000_000  # ready() stops waiting this long after t
     quat_norm_tolerance: float = 1e-3  # quaternions farther from unit norm are rejected
+    max_clock_gap_ns: int = 10_000_000_000  # a time this far from the newest sample is on another clock
 
     def __post_init__(self) -> None:
-        if self.capacity < 2 or min(self.max_gap_ns, self.max_hold_ns, self.settle_ns, self.wait_ns) < 0:
+        if self.capacity < 2 or min(self.max_gap_ns, self.max_hold_ns, self.settle_ns, self.wait_ns,
+                                    self.max_clock_gap_ns) < 0:
             raise ValueError(f"invalid {self}")
 
 

@@ -39,7 +39,8 @@ from lip_ros.lip.calibration import (
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.sensors import IMU_NAMES
 
-__all__ = ["Outcome", "BoneFrame", "LipPose", "ImuStage", "PoseStage", "MAX_PENDING_FRAMES", "MAX_POSE_GAP_NS"]
+__all__ = ["Outcome", "BoneFrame", "LipPose", "ImuStage", "PoseStage", "MAX_PENDING_FRAMES", "MAX_POSE_GAP_NS",
+           "CLOCKS_REASON"]
 
 #: Default of how many frames may wait for IMU data (``ImuStage.max_pending``); older ones are skipped.
 MAX_PENDING_FRAMES = 20
@@ -48,6 +49,8 @@ MAX_POSE_GAP_NS = 2_000_000_000
 
 #: Why a frame gave up waiting for IMU data (more than ``max_pending`` frames behind it).
 LATE_IMU_REASON = "IMU data did not arrive in time"
+#: The start of the reason of a frame stamped on another clock than the IMU data (``SyncConfig.max_clock_gap_ns``).
+CLOCKS_REASON = "clocks"
 
 
 class Outcome(str, enum.Enum):
@@ -254,8 +257,9 @@ class ImuStage:
             if old.pose_stamp_ns is None:
                 done.append(self._process(old))
             else:
-                done.append(BoneFrame(old.frame_stamp_ns, old.pose_stamp_ns, Outcome.SKIPPED, LATE_IMU_REASON,
-                                      old.points, tag=old.tag))
+                reason = self._clock_gap(old.pose_stamp_ns) or LATE_IMU_REASON
+                done.append(BoneFrame(old.frame_stamp_ns, old.pose_stamp_ns, Outcome.SKIPPED, reason, old.points,
+                                      tag=old.tag))
         return done
 
     def _ready(self, waiting: _Waiting, now_ns: int) -> bool:
@@ -279,11 +283,24 @@ class ImuStage:
             if self.calibration_file is not None:
                 save_calibration(cal, self.calibration_file)
 
+    def _clock_gap(self, t_ns: int) -> str | None:
+        """Why ``t_ns`` cannot be on the IMU data's clock (None if it can): too far from the newest sample."""
+        newest = self.data_time_ns
+        if newest is None or abs(t_ns - newest) <= self.sync.config.max_clock_gap_ns:
+            return None
+        return (f"{CLOCKS_REASON}: the LiDAR frame is stamped {(t_ns - newest) * 1e-9:+.1f} s from the newest DOT "
+                "sample: the LiDAR and the DOTs stamp on different clocks (ouster-ros: timestamp_mode "
+                "TIME_FROM_ROS_TIME, or PTP on both), or every DOT has been silent that long")
+
     def _process(self, w: _Waiting) -> BoneFrame:
         if w.pose_stamp_ns is None:
             return BoneFrame(w.frame_stamp_ns, None, Outcome.SKIPPED, w.reason, tag=w.tag)
         t = w.pose_stamp_ns
         start = time.perf_counter()
+        clocks = self._clock_gap(t)
+        if clocks is not None:  # before the calibration, which would wait for samples of this time for ever
+            return BoneFrame(w.frame_stamp_ns, t, Outcome.SKIPPED, clocks, w.points,
+                             seconds=time.perf_counter() - start, tag=w.tag)
         if self._detector is not None:
             self._try_calibrate(t)
         if self.calibration is None:

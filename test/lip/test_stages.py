@@ -103,3 +103,28 @@ def test_calibration_detector_stays_bounded_when_stamps_jump_back():
         detector.add_cloud(stamp, np.zeros((5, 3)))
     assert len(detector._samples["left_wrist"]) <= detector.max_buffered == int(1.0 * MAX_SAMPLE_RATE_HZ)
     assert len(detector._clouds) <= int(1.0 * MAX_FRAME_RATE_HZ)
+
+
+@pytest.mark.parametrize("lidar_offset_s", [-1.7e9, 3600.0])
+def test_frames_on_another_clock_are_skipped_with_the_reason(lidar_offset_s):
+    """DOTs on ROS time and a LiDAR on its own oscillator (or an hour ahead): every frame is skipped saying the
+    clocks disagree, none waits for a calibration that cannot come; without the offset the same frames calibrate."""
+    outcomes = {}
+    for offset in (0.0, lidar_offset_s):
+        stage, done = ImuStage(), []
+        for k in range(600):  # 10 s of DOT data at 60 Hz, a frame every 6th sample (10 Hz)
+            stamp = 1_700_000_000_000_000_000 + int(k * 1e9 / 60.0)
+            for name in IMU_NAMES:
+                stage.add_imu(name, imu_sample(stamp, name, [0.0, 0.0, 0.0, 1.0], [0.0] * 3, [0.0, 0.0, 9.81]))
+                done += stage.poll()
+            if k % 6 == 0:
+                done += stage.add_frame(stamp + int(offset * 1e9), stamp + int(offset * 1e9), np.zeros((50, 3)))
+        done += stage.flush()
+        outcomes[offset] = done
+    assert {f.outcome.value for f in outcomes[0.0]} == {"calibrating"}  # still data: no poses, nothing wrong
+    other = outcomes[lidar_offset_s]
+    assert len(other) == 100 and {f.outcome.value for f in other} == {"skipped"}
+    prefix = "clocks: the LiDAR frame is stamped "
+    assert all(f.reason.startswith(prefix) for f in other), other[0].reason
+    gaps = [float(f.reason[len(prefix):].split(" s ")[0]) for f in other]
+    assert max(abs(g - lidar_offset_s) for g in gaps) < 10.0  # the offset, within the data's 10 s

@@ -16,17 +16,18 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from helpers import DEMO_BAG, console_script
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Imu, JointState
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import Imu, JointState, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from lip_msgs_py import msg_to_pose_stamped
+from lip_msgs_py import RclpyBackend, imu_sample, imu_to_msg, msg_to_diagnostics, msg_to_pose_stamped, xyz_to_cloud
 from lip_ros.bagio import read_messages
 from lip_ros.core.urdf import URDF_FILE
 from lip_ros.lip.batch import replay_bag
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.pipeline import LipPipeline, PipelineConfig
+from lip_ros.lip.sensors import IMU_NAMES
 from lip_ros.resources import params_path
 
 pytestmark = pytest.mark.ros  # DDS traffic or subprocesses
@@ -191,3 +192,40 @@ def test_segmentation_lock_parameters_are_taken(ros_node):
         proc.kill()
         out = proc.communicate(timeout=30)[0]
     assert "Traceback" not in out and "parameter error" not in out, out
+
+
+def test_a_lidar_on_another_clock_is_an_error_on_diagnostics(ros_node):
+    """Performer clouds stamped on a sensor oscillator (1000 s since boot) and DOTs on ROS time: calibration_node
+    skips every frame saying so, with an ERROR, instead of calibrating for ever."""
+    backend = RclpyBackend()
+    latest = {}
+    sub = ros_node.create_subscription(
+        DiagnosticArray, "/diagnostics", lambda m: latest.update((s.name, s) for s in msg_to_diagnostics(m).statuses),
+        10)
+    imu_pubs = [ros_node.create_publisher(Imu, f"/dot/{n}/imu", qos_profile_sensor_data) for n in IMU_NAMES]
+    cloud_pub = ros_node.create_publisher(PointCloud2, "/lip/performer/points", RELIABLE)
+    proc = _start("calibration_node", "-p", "diagnostics_period_s:=0.3")
+    try:
+        _spin_until(ros_node, lambda: all(p.get_subscription_count() for p in (*imu_pubs, cloud_pub)), proc)
+        start, k = time.monotonic(), 0
+        while k < 180:  # 3 s at 60 Hz
+            stamp = time.time_ns()
+            for name, pub in zip(IMU_NAMES, imu_pubs):
+                pub.publish(imu_to_msg(backend, imu_sample(stamp, name, [0.0, 0.0, 0.0, 1.0], [0.0] * 3,
+                                                           [0.0, 0.0, 9.81])))
+            if k % 6 == 0:
+                cloud_pub.publish(xyz_to_cloud(backend, np.zeros((50, 3), np.float32), 1000 * 10**9 + k * 10**7,
+                                               "os_lidar"))
+            k += 1
+            while (wait := start + k / 60 - time.monotonic()) > 0:
+                rclpy.spin_once(ros_node, timeout_sec=wait)
+        _spin_until(ros_node, lambda: "clocks" in getattr(latest.get("calibration_node: frames"), "message", ""),
+                    proc)
+    finally:
+        ros_node.destroy_subscription(sub)
+        proc.kill()
+        proc.communicate(timeout=30)
+    status = latest["calibration_node: frames"]
+    assert status.level == 2 and status.message.startswith("clocks: the LiDAR frame is stamped -"), status
+    assert int(status.values["frames skipped: clocks"]) >= 10
+    assert "frames calibrating" not in status.values

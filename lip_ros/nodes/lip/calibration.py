@@ -44,7 +44,7 @@ from lip_ros.core.imu_sync import SyncConfig
 from lip_ros.core.rotations import matrix_to_quat
 from lip_ros.lip.calibration import CalibrationError
 from lip_ros.lip.sensors import IMU_NAMES
-from lip_ros.lip.stages import BoneFrame, ImuStage, Outcome
+from lip_ros.lip.stages import CLOCKS_REASON, BoneFrame, ImuStage, Outcome
 from lip_ros.nodes.base import (
     BETWEEN_NODES,
     IMU_INPUT,
@@ -85,6 +85,8 @@ class CalibrationNode(GraphNode):
         "max_imu_hold_s": Param("oldest a DOT sample may be when held for a frame it does not cover", positive),
         "imu_wait_s": Param("how long a frame waits for late DOT data after its pose time", positive),
         "max_pending_frames": Param("frames that may wait for DOT data; older ones are skipped", positive),
+        "max_clock_gap_s": Param("a frame stamped this far from the newest DOT sample is on another clock: skipped, "
+                                 "ERROR on /diagnostics", positive),
     }
 
     def __init__(self, **kwargs: Any) -> None:
@@ -92,7 +94,7 @@ class CalibrationNode(GraphNode):
         p = self.params
         file = Path(p["calibration_file"]).expanduser() if p["calibration_file"] else None
         sync = SyncConfig(max_gap_ns=int(p["max_imu_gap_s"] * 1e9), max_hold_ns=int(p["max_imu_hold_s"] * 1e9),
-                          wait_ns=int(p["imu_wait_s"] * 1e9))
+                          wait_ns=int(p["imu_wait_s"] * 1e9), max_clock_gap_ns=int(p["max_clock_gap_s"] * 1e9))
         try:
             self.stage = ImuStage(sync, calibration_file=file, max_pending=p["max_pending_frames"])
         except (OSError, ValueError, KeyError, CalibrationError) as exc:
@@ -143,6 +145,8 @@ class CalibrationNode(GraphNode):
             else:
                 self.count_frame(f"skipped: {f.reason.split(':')[0]}", f"{f.pose_stamp_ns}: {f.reason}")
                 self._last_sync = f.reason
+                if f.reason.startswith(CLOCKS_REASON):
+                    self.get_logger().error(f.reason, throttle_duration_sec=5.0)
         if frames:
             self._publish_state()
 
@@ -180,7 +184,10 @@ class CalibrationNode(GraphNode):
     def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
         """Calibration state, sync health, frames waiting for DOT data, latency performer cloud -> bones published."""
         level = DiagnosticLevel.OK if self.stage.calibrated else DiagnosticLevel.WARN
-        return level, self.stage.status, {"calibration": "calibrated" if self.stage.calibrated else "none",
+        message = self.stage.status
+        if self._last_sync.startswith(CLOCKS_REASON):  # nothing can come out until the clocks agree
+            level, message = DiagnosticLevel.ERROR, self._last_sync
+        return level, message, {"calibration": "calibrated" if self.stage.calibrated else "none",
                                           "pending": self.stage.pending, "bones with a held DOT sample": self._held,
                                           "samples held for the calibration": self.stage.calibration_samples,
                                           "last sync": self._last_sync, **self._latency.values("latency_ms")}
