@@ -10,3 +10,16 @@ GRAVITY = 9.81
 #: Orientation in L of an upright body (frame M) facing +x of L: model z -> x, y -> z, x -> y.
 #: A body with heading h (its forward direction's azimuth in L) has ``Rz(h) @ R_L_M_FACING_X``.
 R_L_M_FACING_X = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def level_rotation(up: np.ndarray) -> np.ndarray:
+    """R_L_P (3, 3): the level frame P of a sensor frame L whose gravity-up direction in L is ``up`` (3,): P's z
+    is ``up``, and P is L turned by the smallest rotation that does it (so P keeps L's heading as far as a level
+    frame can). The identity when ``up`` is L's z."""
+    z = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    axis = np.cross([0.0, 0.0, 1.0], z)  # sin(angle) * unit axis
+    c = float(z[2])
+    if c <= -1.0 + 1e-12:
+        raise ValueError(f"up {up} points down: no level frame")
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + k + k @ k / (1.0 + c)  # Rodrigues for the rotation taking z onto up

@@ -18,7 +18,9 @@ sensor reports ``R_I_S(X) = R_I_M @ R_M_B(X) @ R_B_S``. Unknown are ``R_I_M``
   exactly, its heading comes from the T-pose point cloud (the outstretched arms
   span the body's left-right axis; the body faces the sensor, which resolves
   the sign). L is level and I gravity-aligned, so ``R_L_I = Rz(psi)`` with psi
-  the body's heading in L minus its heading in I.
+  the body's heading in L minus its heading in I. (For a tilted LiDAR, "L" here
+  is its level frame: :mod:`lip_ros.lip.stages` turns points into it and the
+  bones out of it, so a calibration and its file hold for any tilt.)
 * Equations 13 and 16 then give every sample's bone orientation and free
   acceleration in L: ``R_L_B = R_L_I @ R_I_S @ R_B_S^T`` and
   ``a_L = R_L_I @ R_I_S @ f_S - [0, 0, g]`` (``f_S`` the specific force).

@@ -83,6 +83,10 @@ class FrameResult:
 class Segmenter(Protocol):
     """What finds the performer in a frame (:class:`PerformerSegmenter`, or ground-truth labels in evaluation)."""
 
+    @property
+    def level(self) -> np.ndarray | None:
+        """R_L_P: the gravity-aligned level frame in the LiDAR frame, None if not known (L taken as level)."""
+
     def process(self, points: np.ndarray, stamp_ns: int) -> SegmentationResult:
         """The performer in one organized frame."""
 
@@ -170,6 +174,7 @@ class LipPipeline:
         """One organized Ouster frame (H, W) ``original`` array; frames that cannot wait for IMU data come back now."""
         start = time.perf_counter()
         seg = self.segmenter.process(points, stamp_ns)
+        self.imu.level = self.poser.level = self.segmenter.level
         tag = (seg, time.perf_counter() - start)
         if seg.status != SegmentationStatus.OK:
             return self._results(self.imu.add_unusable(stamp_ns, f"{seg.status.value}: {seg.reason}", tag))

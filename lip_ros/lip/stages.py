@@ -12,6 +12,13 @@ batch tools; both call the same code, so a bag gives the same poses either way.
   reason they cannot. A new calibration can be started (the current one stays
   in use until the new one is solved) or the calibration reset.
 * :class:`PoseStage`: the streaming LIP network and the forward kinematics.
+
+Both stages take and give everything in the LiDAR frame L, and work inside in
+its level frame P (:func:`lip_ros.core.frames.level_rotation`: gravity-up z,
+L's heading), which their ``level`` attribute gives as R_L_P once the ground
+is known (None: L is taken as level). So a tilted sensor needs nothing else:
+the calibration (and its file) is in P, gravity is P's -z, and the network
+sees the level world it was trained on.
 """
 
 from __future__ import annotations
@@ -126,6 +133,7 @@ class ImuStage:
         if calibration is None and calibration_file is not None and calibration_file.is_file():
             calibration = load_calibration(calibration_file)
         self.calibration = calibration
+        self.level: np.ndarray | None = None  # R_L_P (3, 3), the level frame in L (None: L is level)
         #: Increases whenever the calibration changes (solved, reset): poses before and after do not chain.
         self.calibration_count = 0
         self._detector: CalibrationDetector | None = None
@@ -210,7 +218,7 @@ class ImuStage:
                   ) -> list[BoneFrame]:
         """Queue a frame with the performer's points (N, 3) in L; frames that cannot wait any longer come back now."""
         if self._detector is not None:
-            self._detector.add_cloud(pose_stamp_ns, points)
+            self._detector.add_cloud(pose_stamp_ns, points if self.level is None else points @ self.level)
         return self._enqueue(_Waiting(frame_stamp_ns, pose_stamp_ns, points, "", tag))
 
     def add_unusable(self, frame_stamp_ns: int, reason: str, tag: Any = None) -> list[BoneFrame]:
@@ -311,8 +319,11 @@ class ImuStage:
             return BoneFrame(w.frame_stamp_ns, t, Outcome.SKIPPED, f"IMU: {synced.reason}", w.points, synced,
                              seconds=time.perf_counter() - start, tag=w.tag)
         rot, acc = zip(*(self.calibration.apply(n, synced.quat[i], synced.accel[i]) for i, n in enumerate(IMU_NAMES)))
-        return BoneFrame(w.frame_stamp_ns, t, Outcome.POSE, synced.reason, w.points, synced, np.stack(rot),
-                         np.stack(acc), time.perf_counter() - start, w.tag)
+        rot, acc = np.stack(rot), np.stack(acc)  # in P, the calibration's frame
+        if self.level is not None:
+            rot, acc = self.level @ rot, acc @ self.level.T
+        return BoneFrame(w.frame_stamp_ns, t, Outcome.POSE, synced.reason, w.points, synced, rot, acc,
+                         time.perf_counter() - start, w.tag)
 
 
 class PoseStage:
@@ -327,6 +338,7 @@ class PoseStage:
         self.model = model
         self.skeleton = skeleton or load_skeleton()
         self.max_gap_ns = max_gap_ns
+        self.level: np.ndarray | None = None  # R_L_P (3, 3), the level frame in L (None: L is level)
         self.sequences = 0  # sequences started (the first pose, then after each gap)
         self._last_ns: int | None = None
         self.model.reset()
@@ -350,6 +362,10 @@ class PoseStage:
             if last is None or stamp_ns - last > self.max_gap_ns:
                 new.add(k)
             last = stamp_ns
+        level = self.level
+        if level is not None:  # into P, where the network works
+            points = [(p @ level).astype(p.dtype) for p in points]
+            bone_rot, free_acc = level.T @ bone_rot, free_acc @ level
         outs = []
         for a, b in itertools.pairwise(sorted({0, *new, len(stamps_ns)})):
             if a in new:
@@ -359,6 +375,8 @@ class PoseStage:
         self._last_ns = stamps_ns[-1]
         rot, trans, scale = (np.concatenate([getattr(o, k) for o in outs]) for k in ("local_rot", "translation",
                                                                                       "body_scale"))
+        if level is not None:  # the root back into L; the kinematics then give every joint in L
+            rot[:, 0], trans = level @ rot[:, 0], trans @ level.T
         t_fk = time.perf_counter()
         glob, pos = forward_kinematics(self.skeleton, rot, trans, self.skeleton.offsets * scale[:, None, None])
         net_s, fk_s = (t_fk - start) / len(rot), (time.perf_counter() - t_fk) / len(rot)

@@ -37,7 +37,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from lip_msgs_py import (
     DiagnosticLevel,
@@ -51,10 +51,12 @@ from lip_ros.middleware import use_lip_dds_profile
 from lip_ros.resources import params_path
 
 __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "numbers", "GraphNode", "LatencyWindow", "RELIABLE",
-           "BETWEEN_NODES", "IMU_INPUT", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals"]
+           "BETWEEN_NODES", "IMU_INPUT", "LATCHED", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals"]
 
 #: QoS of the graph's outputs.
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: Reliable and transient local: a late subscriber gets the last message (a state, not a stream).
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: QoS of the topics between the graph's nodes: reliable, and deep enough that a busy node loses nothing.
 BETWEEN_NODES = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: SensorDataQoS (best effort) for the 60 Hz IMUs, with room for the samples that arrive while a frame is processed.

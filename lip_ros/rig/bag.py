@@ -49,12 +49,13 @@ def _truth_sidecar(session: CaptureSession) -> dict[str, Any]:
         "config": session.config.as_dict(),
         "epoch_ns": session.epoch_ns,
         "lidar": {"frame_id": LIDAR_FRAME, "beams": session.lidar.beams, "columns": session.lidar.columns,
-                  "rate_hz": session.lidar.rate_hz, "height_m": session.config.lidar_height_m},
+                  "rate_hz": session.lidar.rate_hz, "height_m": session.config.lidar_height_m,
+                  "R_S_L": session.lidar_rotation.tolist()},  # L in the level world S (tilt)
         "performer": {"scenario": m.scenario,
                       "body_scale": m.skeleton.scale,
                       "girth": session.girth, "pelvis_height_m": float(m.skeleton.pelvis_height)},
         "phases": [{"name": n, "start_ns": a, "end_ns": b} for n, a, b in session.phases_ns()],
-        "imu_calibration": session.imu_truth.as_dict(),
+        "imu_calibration": session.imu_calibration(),
     }
 
 

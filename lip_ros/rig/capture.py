@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from lip_ros.core.body import BodyModel
+from lip_ros.core.rotations import rot_x, rot_y
 from lip_ros.rig.imu import ImuNoise, ImuRigConfig, ImuStream, ImuTruth, make_imu_truth, simulate_imus
 from lip_ros.rig.lidar import Actor, Frame, OusterModel
 from lip_ros.rig.motion import PerformerMotion, make_motion
@@ -39,6 +40,8 @@ class CaptureConfig:
     bearing_deg: float = 0.0  # azimuth of the area's centre in L (0 = straight ahead, +x)
     area_radius_m: float = 2.5
     lidar_height_m: float = 1.2
+    lidar_pitch_deg: float = 0.0  # the LiDAR tilted about its y axis: positive looks down along +x
+    lidar_roll_deg: float = 0.0  # ... and about its x axis: positive lifts +y
     sensor: str = "os1-128"
     columns: int = 1024
     rate_hz: float = 10.0
@@ -131,7 +134,7 @@ class CaptureSession:
                                       ground_z)
         else:
             self.scene = Scene(ground_z=ground_z)
-        self.lidar = SENSORS[cfg.sensor](columns=cfg.columns, rate_hz=cfg.rate_hz,
+        self.lidar = SENSORS[cfg.sensor](columns=cfg.columns, rate_hz=cfg.rate_hz, rotation=self.lidar_rotation,
                                           azimuth_window_deg=cfg.azimuth_window_deg,
                                           column0_azimuth_deg=cfg.column0_azimuth_deg,
                                           beam_azimuth_deg=tuple(cfg.beam_azimuth_deg))
@@ -152,11 +155,27 @@ class CaptureSession:
         """Header stamp of frame ``k``."""
         return self.epoch_ns + k * self.lidar.period_ns
 
+    @property
+    def lidar_rotation(self) -> np.ndarray:
+        """R_S_L (3, 3): the LiDAR frame L in the level world S of the scene and the motion (pitch, then roll)."""
+        cfg = self.config
+        return rot_y(np.radians(cfg.lidar_pitch_deg)) @ rot_x(np.radians(cfg.lidar_roll_deg))
+
     def truth_at(self, stamp_ns: int) -> GroundTruth:
-        """The performer's pose at a capture-clock time."""
+        """The performer's pose at a capture-clock time, in L."""
         pose = self.motion.sample(np.array([(stamp_ns - self.epoch_ns) * 1e-9]))
         glob, pos = pose.global_pose(self.motion.skeleton)
-        return GroundTruth(int(stamp_ns), pose.root_pos[0], pose.local_rot[0], glob[0], pos[0])
+        R_L_S = self.lidar_rotation.T
+        local = pose.local_rot[0].copy()
+        local[0] = R_L_S @ local[0]
+        return GroundTruth(int(stamp_ns), R_L_S @ pose.root_pos[0], local, R_L_S @ glob[0], pos[0] @ R_L_S.T)
+
+    def imu_calibration(self) -> dict:
+        """The DOTs' true calibration (:meth:`ImuTruth.as_dict`) with the inertial frame in L (``R_L_I``); ``psi``
+        is its heading in the level world."""
+        d = self.imu_truth.as_dict()
+        d["R_L_I"] = (self.lidar_rotation.T @ self.imu_truth.R_L_I).tolist()
+        return d
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[CaptureFrame]:
         """Frames ``start``..``stop`` (default: all), each from its own random stream."""

@@ -24,6 +24,8 @@ def _make_bag(args: argparse.Namespace) -> int:
     window = tuple(args.azimuth_window) if args.azimuth_window else None
     config = CaptureConfig(scenario=args.scenario, seconds=args.seconds, seed=args.seed, distance_m=args.distance,
                            bearing_deg=args.bearing, sensor=args.sensor, columns=args.columns,
+                           lidar_height_m=args.lidar_height, lidar_pitch_deg=args.lidar_pitch,
+                           lidar_roll_deg=args.lidar_roll,
                            azimuth_window_deg=window, column0_azimuth_deg=args.column0_azimuth,
                            beam_azimuth_deg=tuple(args.beam_azimuth), clutter=not args.no_clutter,
                            second_person=args.second_person, max_mount_deg=args.max_mount_deg)
@@ -58,6 +60,12 @@ def parser() -> argparse.ArgumentParser:
     m.add_argument("--distance", type=float, default=8.0, help="LiDAR to capture-area centre (m)")
     m.add_argument("--bearing", type=float, default=0.0, help="azimuth of the capture area in os_lidar (deg)")
     m.add_argument("--sensor", choices=sorted(SENSORS), default=CaptureConfig.sensor)
+    m.add_argument("--lidar-height", type=float, default=CaptureConfig.lidar_height_m, metavar="M",
+                   help="height of the LiDAR above the ground")
+    m.add_argument("--lidar-pitch", type=float, default=CaptureConfig.lidar_pitch_deg, metavar="DEG",
+                   help="LiDAR tilt about its y axis (positive: +x looks down)")
+    m.add_argument("--lidar-roll", type=float, default=CaptureConfig.lidar_roll_deg, metavar="DEG",
+                   help="LiDAR tilt about its x axis (positive: +y looks up)")
     m.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=1024)
     m.add_argument("--azimuth-window", type=float, nargs=2, metavar=("START", "END"),
                    help="Ouster azimuth window in encoder degrees from column 0, in sweep order (with the default "

@@ -73,6 +73,7 @@ def test_shipped_topics_agree_with_lip_sensors_and_the_contract():
     assert cal["imu_topics"] == [IMU_TOPICS[n] for n in IMU_NAMES]
     assert cal["bone_topics"] == pose["bone_topics"] == [f"/lip/bones/{n}/imu" for n in IMU_NAMES]
     assert seg["performer_topic"] == cal["performer_topic"] == pose["performer_topic"]
+    assert seg["ground_topic"] == cal["ground_topic"] == pose["ground_topic"]
     lip_imus = load_skeleton().lip_imus
     assert tuple(lip_imus) == IMU_NAMES
     assert {n: s["topic"] for n, s in lip_imus.items()} == IMU_TOPICS

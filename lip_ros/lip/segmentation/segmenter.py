@@ -59,6 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lip_ros.core.frames import level_rotation
 from lip_ros.core.scan_layout import ScanLayout, fit_scan_layout
 from lip_ros.lip.segmentation.clusters import Clusters, describe_clusters, link_components
 from lip_ros.lip.segmentation.scene import BackgroundModel, GroundPlane, fit_ground_plane
@@ -218,6 +219,12 @@ class PerformerSegmenter:
         self.performer: Track | None = None
         self._others: list[Track] = []
         self._last_stamp_ns: int | None = None
+
+    @property
+    def level(self) -> np.ndarray | None:
+        """R_L_P (3, 3): the level frame whose z is the fitted ground's normal (gravity-up; see
+        :func:`lip_ros.core.frames.level_rotation`), None before the ground is known."""
+        return None if self.ground is None else level_rotation(self.ground.normal)
 
     @property
     def locked(self) -> bool:

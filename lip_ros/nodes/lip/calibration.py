@@ -25,8 +25,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -48,6 +48,7 @@ from lip_ros.lip.stages import CLOCKS_REASON, BoneFrame, ImuStage, Outcome
 from lip_ros.nodes.base import (
     BETWEEN_NODES,
     IMU_INPUT,
+    LATCHED,
     GraphNode,
     LatencyWindow,
     Param,
@@ -56,11 +57,10 @@ from lip_ros.nodes.base import (
     run_nodes,
 )
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
+from lip_ros.nodes.lip.ground import GROUND_PARAM, subscribe_ground
 
 __all__ = ["CalibrationNode", "main"]
 
-#: Reliable and transient local: a late subscriber gets the last calibration state.
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def _four_topics(value: Any) -> str | None:
@@ -80,6 +80,7 @@ class CalibrationNode(GraphNode):
         "bone_topics": Param("outputs: calibrated bone orientation and free acceleration in L, order as imu_topics",
                              _four_topics),
         "calibration_topic": Param("output (latched): the calibration state as YAML"),
+        "ground_topic": GROUND_PARAM,
         "calibration_file": Param("calibration YAML: loaded at start if present, written when solved ('' = none)"),
         "max_imu_gap_s": Param("widest gap between two samples of a DOT that is interpolated across", positive),
         "max_imu_hold_s": Param("oldest a DOT sample may be when held for a frame it does not cover", positive),
@@ -110,10 +111,14 @@ class CalibrationNode(GraphNode):
                            IMU_INPUT)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
                        self._on_performer, BETWEEN_NODES)
+        subscribe_ground(self, p["ground_topic"], self._on_ground)
         self.create_service(Trigger, "lip/start_calibration", self._on_start, callback_group=self.group)
         self.create_service(Trigger, "lip/reset_calibration", self._on_reset, callback_group=self.group)
         self._publish_state()
         self.get_logger().info(f"ready; {self.stage.status}")
+
+    def _on_ground(self, level: np.ndarray) -> None:
+        self.stage.level = level
 
     def _on_imu(self, name: str, msg: Imu) -> int:
         sample = msg_to_imu(msg)

@@ -51,6 +51,7 @@ from lip_ros.nodes.base import (
 )
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
 from lip_ros.nodes.lip.calibration import CalibrationNode
+from lip_ros.nodes.lip.ground import GROUND_PARAM, subscribe_ground
 from lip_ros.outputs import pose_messages
 
 __all__ = ["PoseNode", "main"]
@@ -70,6 +71,7 @@ class PoseNode(GraphNode):
         "frame_id": Param("frame of the outputs ('' = the LiDAR cloud's frame)"),
         "publish_tf": Param("broadcast the pelvis on /tf (needs tf2_msgs)"),
         "tf_child_frame": Param("child frame of the /tf pelvis transform (the URDF's root link)"),
+        "ground_topic": GROUND_PARAM,
         "max_pose_gap_s": Param("after this long without a pose the network starts a new sequence", positive),
         "join_max_stamps": Param("stamps that may wait for the rest of their inputs", positive),
     }
@@ -93,6 +95,7 @@ class PoseNode(GraphNode):
                                             (LIP_TOPICS.joint_poses, "geometry_msgs/msg/PoseArray"),
                                             (LIP_TOPICS.skeleton, "visualization_msgs/msg/MarkerArray"))}
         self._tf_pub = self._tf_publisher() if p["publish_tf"] else None
+        subscribe_ground(self, p["ground_topic"], self._on_ground)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
                        lambda msg: self._on_input(_POINTS, msg), BETWEEN_NODES)
         for name, topic in zip(IMU_NAMES, p["bone_topics"]):
@@ -107,6 +110,9 @@ class PoseNode(GraphNode):
             self.get_logger().info("tf2_msgs is not installed: the pelvis is not broadcast on /tf")
             return None
         return self.create_publisher(tf_type, "/tf", RELIABLE)
+
+    def _on_ground(self, level: np.ndarray) -> None:
+        self.stage.level = level
 
     def _on_input(self, name: str, msg: Any) -> int:
         stamp_ns, frame_id = read_header(msg)

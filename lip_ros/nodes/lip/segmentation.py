@@ -21,12 +21,14 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import PointCloud2
 
 from lip_msgs_py import DiagnosticLevel, MalformedMessageError, cloud_to_array, read_header, xyz_to_cloud
 from lip_ros.lip.segmentation import LOCK_RULES, PerformerSegmenter, SegmentationConfig, SegmentationStatus
 from lip_ros.nodes.base import (
     BETWEEN_NODES,
+    LATCHED,
     FrameArrivals,
     GraphNode,
     LatencyWindow,
@@ -37,6 +39,7 @@ from lip_ros.nodes.base import (
     run_nodes,
 )
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
+from lip_ros.nodes.lip.ground import GROUND_PARAM, describe_level, ground_message
 
 __all__ = ["SegmentationNode", "main"]
 
@@ -60,6 +63,7 @@ class SegmentationNode(GraphNode):
         "expected_radius_m": Param("the performer is looked for within this of expected_xy", positive),
         "ground_plane": Param("the ground, [a, b, c, d] with a x + b y + c z + d = 0 in the LiDAR frame "
                               "([] = fitted to the first frame)", numbers(0, 4), any_type=True),
+        "ground_topic": GROUND_PARAM,
     }
 
     def __init__(self, arrivals: FrameArrivals | None = None, **kwargs: Any) -> None:
@@ -79,6 +83,8 @@ class SegmentationNode(GraphNode):
         self._latency = LatencyWindow()
         self._last_status = "no frame yet"
         self._pub = self.create_publisher(PointCloud2, p["performer_topic"], BETWEEN_NODES)
+        self._ground_pub = self.create_publisher(PoseStamped, p["ground_topic"], LATCHED)
+        self._ground_sent = False
         self.add_input(p["lidar_name"], p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud)
 
     def _on_cloud(self, msg: PointCloud2) -> int:
@@ -90,6 +96,12 @@ class SegmentationNode(GraphNode):
             self.count_frame("skipped: malformed cloud")
             raise
         seg = self._segmenter.process(points, stamp_ns)
+        ground = self._segmenter.ground
+        if ground is not None and not self._ground_sent:  # before the first performer cloud it levels
+            self._ground_pub.publish(ground_message(self.backend, stamp_ns, frame_id, ground))
+            self._ground_sent = True
+            self.get_logger().info(f"ground fitted: the LiDAR is {ground.offset:.2f} m above it; "
+                                   f"{describe_level(self._segmenter.level)}")
         self._last_status = f"{seg.status.value}: {seg.reason}" if seg.reason else seg.status.value
         if seg.status != SegmentationStatus.OK:
             self.count_frame(f"skipped: {seg.status.value}", f"{stamp_ns}: {self._last_status}")
@@ -125,10 +137,13 @@ class SegmentationNode(GraphNode):
     def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
         """Level, message and values of the frames status: the last frame's segmentation state."""
         level = DiagnosticLevel.OK if self._last_status == SegmentationStatus.OK.value else DiagnosticLevel.WARN
-        layout = self._segmenter.layout
+        layout, ground = self._segmenter.layout, self._segmenter.ground
         return level, self._last_status, {"performer clouds published": self._latency.count,
                                           "performer locked": self._segmenter.locked,
                                           "scan layout": "not derived yet" if layout is None else layout.describe(),
+                                          "ground": "not found yet" if ground is None else (
+                                              f"{ground.offset:.2f} m below the LiDAR; "
+                                              f"{describe_level(self._segmenter.level)}"),
                                           **self._latency.values("latency_ms")}
 
 
