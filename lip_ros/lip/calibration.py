@@ -37,7 +37,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from itertools import pairwise
+from itertools import combinations, pairwise
 from pathlib import Path
 from typing import NamedTuple
 
@@ -117,6 +117,8 @@ class CalibrationConfig:
     max_spread_deg: float = 4.0  # largest turn of a sensor from its mean orientation within a pose window
     max_residual_deg: float = 8.0  # largest equation-11 residual of a sensor
     max_tilt_deg: float = 10.0  # largest angle between the body's up and I's z
+    max_heading_split_deg: float = 5.0  # largest difference of the body's heading seen by each turning sensor alone
+    min_turn_deg: float = 30.0  # a sensor that turns this much between the poses sees the body's heading alone
     gravity_weight: float = 1.0  # weight of the upright constraint against the equation-11 residuals
     min_tpose_points: int = 50
     min_tpose_elongation: float = 2.5  # std along the arms / std across, of the T-pose cloud seen from above
@@ -411,6 +413,29 @@ def _solve_R_I_M(
     return axis_angle_to_matrix(x), bs_a, bs_t
 
 
+def _heading_split(R_I_S: dict[str, np.ndarray], R_M_B: dict[str, np.ndarray], names: tuple[str, ...],
+                   config: CalibrationConfig) -> str:
+    """Why the sensors cannot share one inertial frame ('' if they can): each sensor that turns between the poses
+    (the wrists) fixes the body's heading in its own inertial frame alone; one shared frame means one heading."""
+    turn = _angle_deg(*(R_I_S[p] for p in POSES))
+    turning = [i for i in range(len(names)) if turn[i] >= config.min_turn_deg]
+    if len(turning) < 2:
+        return ""
+    heading = {}
+    for i in turning:
+        R_I_M, _, _ = _solve_R_I_M({p: R_I_S[p][i:i + 1] for p in POSES}, {p: R_M_B[p][i:i + 1] for p in POSES},
+                                   config.gravity_weight)
+        heading[names[i]] = np.arctan2(R_I_M[1, 2], R_I_M[0, 2])  # the body's forward (z_M) in that sensor's I
+    (a, ha), (b, hb) = max(combinations(heading.items(), 2),
+                           key=lambda pair: abs(np.angle(np.exp(1j * (pair[0][1] - pair[1][1])))))
+    apart = float(np.degrees(abs(np.angle(np.exp(1j * (ha - hb))))))
+    if apart <= config.max_heading_split_deg:
+        return ""
+    return (f"the DOTs do not share one inertial heading: {a} and {b} see the body's heading {apart:.0f} deg apart "
+            f"(limit {config.max_heading_split_deg:g}); DOTs keep their own heading unless it is reset for all of them "
+            "together: reset the headings (the DOT driver's heading reset) and hold the calibration poses again")
+
+
 def calibrate(
     streams: Mapping[str, ImuArrays],
     tpose_points: np.ndarray | None = None,
@@ -443,6 +468,9 @@ def calibrate(
     ] if bad else []
     if tilt > config.max_tilt_deg:
         problems.append(f"the body's up is {tilt:.1f} deg from vertical (limit {config.max_tilt_deg:g})")
+    split = _heading_split(R_I_S, pose_bone_rotations(skeleton, names), names, config)
+    if split:
+        problems.insert(0, split)
     if problems:
         raise CalibrationError("; ".join(problems))
     if tpose_points is None:

@@ -51,6 +51,7 @@ class CaptureConfig:
     clutter: bool = True
     second_person: bool = False
     max_mount_deg: float = 40.0
+    imu_heading_spread_deg: float = 0.0  # each DOT's own inertial heading within +-this of the others' (0: reset)
     imu_noise: bool = True
 
     def __post_init__(self) -> None:
@@ -138,7 +139,8 @@ class CaptureSession:
                                           azimuth_window_deg=cfg.azimuth_window_deg,
                                           column0_azimuth_deg=cfg.column0_azimuth_deg,
                                           beam_azimuth_deg=tuple(cfg.beam_azimuth_deg))
-        imu_config = ImuRigConfig.lip(self.motion.skeleton, max_mount_deg=cfg.max_mount_deg)
+        imu_config = ImuRigConfig.lip(self.motion.skeleton, max_mount_deg=cfg.max_mount_deg,
+                                      heading_spread_deg=cfg.imu_heading_spread_deg)
         self.imu_truth = make_imu_truth(self.motion.skeleton, imu_config, np.random.default_rng([cfg.seed, 102]))
 
     @property

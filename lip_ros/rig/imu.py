@@ -62,6 +62,7 @@ class ImuSpec:
     R_B_S: np.ndarray
     offset_in_bone: np.ndarray
     phase_s: float = 0.0
+    heading_offset: float = 0.0  # rad, this sensor's inertial heading minus the rig's psi (0: the shared one)
 
 
 @dataclass(frozen=True)
@@ -86,12 +87,14 @@ class ImuRigConfig:
     along: float = 0.5
     surface_m: float = 0.0
     max_clock_offset_s: float = 0.0
+    heading_spread_deg: float = 0.0  # each sensor's own inertial heading is psi + uniform(+-this) (0: one heading)
 
     @classmethod
-    def lip(cls, skeleton: Skeleton, max_mount_deg: float = 40.0) -> ImuRigConfig:
+    def lip(cls, skeleton: Skeleton, max_mount_deg: float = 40.0, heading_spread_deg: float = 0.0) -> ImuRigConfig:
         """The LIP rig: the contract's four DOTs (``lip_imus``), ~60 Hz +-0.5 %, near the wrists and ankles."""
         sensors = tuple((name, s["bone_joint"], IMU_TOPICS[name]) for name, s in skeleton.lip_imus.items())
-        return cls(sensors, 60.0, rate_tol=0.005, max_mount_deg=max_mount_deg, along=0.85, surface_m=0.035)
+        return cls(sensors, 60.0, rate_tol=0.005, max_mount_deg=max_mount_deg, along=0.85, surface_m=0.035,
+                   heading_spread_deg=heading_spread_deg)
 
     @classmethod
     def suit(cls, skeleton: Skeleton) -> ImuRigConfig:
@@ -126,6 +129,7 @@ class ImuTruth:
                     "rate_hz": float(s.rate_hz),
                     "phase_s": float(s.phase_s),
                     "R_B_S": np.asarray(s.R_B_S).tolist(),
+                    "heading_offset": float(s.heading_offset),
                     "offset_in_bone": np.asarray(s.offset_in_bone).tolist(),
                 }
                 for s in self.specs
@@ -234,6 +238,9 @@ def make_imu_truth(skeleton: Skeleton, config: ImuRigConfig, rng: np.random.Gene
         specs.append(ImuSpec(name, joint, topic, rate, R_B_S, offset, phase))
     psi = rng.uniform(-np.pi, np.pi)
     offset_s = rng.uniform(-config.max_clock_offset_s, config.max_clock_offset_s)
+    if config.heading_spread_deg > 0.0:  # drawn last: without a spread the rig draws what it always drew
+        spread = np.deg2rad(config.heading_spread_deg)
+        specs = [replace(s, heading_offset=float(rng.uniform(-spread, spread))) for s in specs]
     return ImuTruth(tuple(specs), float(psi), float(offset_s))
 
 
@@ -336,9 +343,9 @@ def simulate_imus(
         raise ValueError(f"no samples in [{t_start}, {t_end}] s")
     times = [s.phase_s + k / s.rate_hz for s, k in zip(truth.specs, index)]
     kinematics = _kinematics(traj, truth.specs, times, fd_step)
-    R_I_L = truth.R_L_I.T
     streams = {}
     for spec, k, t, (R_L_B, gyro, acc_L) in zip(truth.specs, index, times, kinematics):
+        R_I_L = rot_z(truth.psi + spec.heading_offset).T  # this sensor's own inertial frame
         R_L_S = R_L_B @ spec.R_B_S
         accel = np.einsum("nba,nb->na", R_L_S, acc_L + [0.0, 0.0, GRAVITY])
         gyro_err, accel_err, R_err, stamp_err = _errors(noise, spec.rate_hz, t.size, rng)
