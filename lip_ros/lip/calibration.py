@@ -433,7 +433,8 @@ def _heading_split(R_I_S: dict[str, np.ndarray], R_M_B: dict[str, np.ndarray], n
         return ""
     return (f"the DOTs do not share one inertial heading: {a} and {b} see the body's heading {apart:.0f} deg apart "
             f"(limit {config.max_heading_split_deg:g}); DOTs keep their own heading unless it is reset for all of them "
-            "together: reset the headings (the DOT driver's heading reset) and hold the calibration poses again")
+            "together: reset the headings (the DOT driver's heading reset; calibration_node calls it when its "
+            "heading_reset_service is set) and hold the calibration poses again")
 
 
 def calibrate(

@@ -229,3 +229,37 @@ def test_a_lidar_on_another_clock_is_an_error_on_diagnostics(ros_node):
     assert status.level == 2 and status.message.startswith("clocks: the LiDAR frame is stamped -"), status
     assert int(status.values["frames skipped: clocks"]) >= 10
     assert "frames calibrating" not in status.values
+
+
+def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_node):
+    """A DOT driver's heading reset (its Trigger service, faked here at the driver boundary) is called once the
+    node is up and uncalibrated, and again for each calibration requested."""
+    calls = []
+
+    def reset(_request, response):
+        calls.append(time.monotonic())
+        response.success, response.message = True, "4 DOTs reset"
+        return response
+
+    ros_node.create_service(Trigger, "/test_dot/reset_heading", reset)
+    statuses = {}
+    sub = ros_node.create_subscription(
+        DiagnosticArray, "/diagnostics", lambda m: statuses.update((s.name, s) for s in msg_to_diagnostics(m).statuses),
+        10)
+    proc = _start("calibration_node", "-p", "heading_reset_service:=/test_dot/reset_heading",
+                  "-p", "diagnostics_period_s:=0.3")
+    try:
+        _spin_until(ros_node, lambda: len(calls) == 1, proc)
+        start = ros_node.create_client(Trigger, "/lip/start_calibration")
+        assert _call(ros_node, start, proc).success
+        _spin_until(ros_node, lambda: len(calls) == 2, proc)
+        _spin_until(ros_node, lambda: "done" in str(getattr(statuses.get("calibration_node: frames"), "values", {})
+                                                         .get("DOT heading reset", "")), proc)
+        later = time.monotonic() + 1.5  # three more checks of the node's 0.5 s timer
+        _spin_until(ros_node, lambda: time.monotonic() > later, proc)
+        assert len(calls) == 2  # once per calibration started, not on every check
+    finally:
+        ros_node.destroy_subscription(sub)
+        proc.kill()
+        proc.communicate(timeout=30)
+    assert statuses["calibration_node: frames"].values["DOT heading reset"] == "done: 4 DOTs reset"

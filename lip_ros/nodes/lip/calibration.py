@@ -81,6 +81,8 @@ class CalibrationNode(GraphNode):
                              _four_topics),
         "calibration_topic": Param("output (latched): the calibration state as YAML"),
         "ground_topic": GROUND_PARAM,
+        "heading_reset_service": Param("the DOT driver's std_srvs/Trigger service that resets the four DOTs' "
+                                       "headings together, called whenever a calibration starts ('' = none)"),
         "calibration_file": Param("calibration YAML: loaded at start if present, written when solved ('' = none)"),
         "max_imu_gap_s": Param("widest gap between two samples of a DOT that is interpolated across", positive),
         "max_imu_hold_s": Param("oldest a DOT sample may be when held for a frame it does not cover", positive),
@@ -114,6 +116,13 @@ class CalibrationNode(GraphNode):
         subscribe_ground(self, p["ground_topic"], self._on_ground)
         self.create_service(Trigger, "lip/start_calibration", self._on_start, callback_group=self.group)
         self.create_service(Trigger, "lip/reset_calibration", self._on_reset, callback_group=self.group)
+        self._heading_reset = "not configured"
+        self._heading_reset_wanted = False
+        self._heading_client = None
+        if p["heading_reset_service"]:
+            self._heading_client = self.create_client(Trigger, p["heading_reset_service"], callback_group=self.group)
+            self._heading_reset_wanted = self.stage.calibrating
+            self.create_timer(0.5, self._reset_headings, self.group, clock=self.steady)
         self._publish_state()
         self.get_logger().info(f"ready; {self.stage.status}")
 
@@ -172,8 +181,31 @@ class CalibrationNode(GraphNode):
             where = f", saved to {self.stage.calibration_file}" if self.stage.calibration_file else ""
             self.get_logger().info(f"{self.stage.status}{where}")
 
+    def _reset_headings(self) -> None:
+        """Ask the DOT driver to reset the DOTs' headings together, once per calibration started, when it is up."""
+        if not self._heading_reset_wanted:
+            return
+        name = self._heading_client.srv_name
+        if not self._heading_client.service_is_ready():
+            self._heading_reset = f"waiting for {name}"
+            return
+        self._heading_reset_wanted = False
+        self._heading_reset = f"requested from {name}"
+        self._heading_client.call_async(Trigger.Request()).add_done_callback(self._on_headings_reset)
+
+    def _on_headings_reset(self, future: Any) -> None:
+        result = future.result()
+        if result is not None and result.success:
+            self._heading_reset = f"done: {result.message}" if result.message else "done"
+            self.get_logger().info(f"DOT headings reset ({self._heading_client.srv_name}); hold the A-pose, then "
+                                   "the T-pose")
+        else:
+            self._heading_reset = f"failed: {'no answer' if result is None else result.message}"
+            self.get_logger().warning(f"DOT heading reset {self._heading_reset}")
+
     def _on_start(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.stage.start_calibration()
+        self._heading_reset_wanted = self._heading_client is not None
         self._publish_state()
         response.success, response.message = True, "hold the A-pose, then the T-pose, still, facing the LiDAR"
         self.get_logger().info(f"calibration requested: {response.message}")
@@ -181,6 +213,7 @@ class CalibrationNode(GraphNode):
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.stage.reset()
+        self._heading_reset_wanted = self._heading_client is not None
         self._publish_state()
         response.success, response.message = True, "calibration forgotten; looking for the A-pose and T-pose"
         self.get_logger().info(response.message)
@@ -195,6 +228,7 @@ class CalibrationNode(GraphNode):
         return level, message, {"calibration": "calibrated" if self.stage.calibrated else "none",
                                           "pending": self.stage.pending, "bones with a held DOT sample": self._held,
                                           "samples held for the calibration": self.stage.calibration_samples,
+                                          "DOT heading reset": self._heading_reset,
                                           "last sync": self._last_sync, **self._latency.values("latency_ms")}
 
 
