@@ -43,6 +43,7 @@ setup(
         ("share/" + PACKAGE, ["package.xml"]),
         ("share/" + PACKAGE + "/params", sorted(glob("params/*.yaml") + glob("params/*.urdf") + glob("params/*.xml"))),
         ("share/" + PACKAGE + "/params/weights", sorted(glob("params/weights/*.pt") + glob("params/weights/*.json"))),
+        ("share/" + PACKAGE + "/launch", sorted(glob("launch/*.launch.xml"))),
     ],
     install_requires=["setuptools"],
     extras_require={"core": CORE, "pypi": CORE + PYPI, "test": TEST},
