@@ -52,6 +52,7 @@ class CaptureConfig:
     second_person: bool = False
     max_mount_deg: float = 40.0
     imu_heading_spread_deg: float = 0.0  # each DOT's own inertial heading within +-this of the others' (0: reset)
+    body_scale: float | None = None  # the performer's size, times the contract skeleton's (None: random 0.9-1.1)
     imu_noise: bool = True
 
     def __post_init__(self) -> None:
@@ -114,7 +115,8 @@ class CaptureSession:
         rng = np.random.default_rng([cfg.seed, 100])
         bearing = np.deg2rad(cfg.bearing_deg)
         centre = cfg.distance_m * np.array([np.cos(bearing), np.sin(bearing), 0.0])
-        self.motion = make_motion(cfg.scenario, cfg.seconds, cfg.seed, centre, cfg.lidar_height_m, cfg.area_radius_m)
+        self.motion = make_motion(cfg.scenario, cfg.seconds, cfg.seed, centre, cfg.lidar_height_m, cfg.area_radius_m,
+                                  cfg.body_scale)
         self.girth = float(rng.uniform(0.9, 1.15))
         self.body = BodyModel(self.motion.skeleton, girth=self.girth)
         areas = [(centre, cfg.area_radius_m)]

@@ -192,10 +192,11 @@ def test_point_cloud_message_gives_the_same_result():
     assert all(runs["message"].masks_equal) and runs["message"].status == runs["all"].status
 
 
-#: Sensors and conventions the rig's own default (an OS1-128, column 0 along -x) does not cover: CaptureConfig
-#: changes. ouster-ros's os_lidar (column 0 along +x) with the performer straight ahead, where the sweep starts and
-#: ends (the seam), and to the side; a mounting yaw; the sub-column azimuth differences between the rows that a
-#: destaggered Ouster cloud keeps; an OS0-128 (90 deg field of view), an OS2-128 (22.5 deg) and an OS1-64.
+#: Sensors, conventions and set-ups the rig's own default (an OS1-128, column 0 along -x, level at 1.2 m, performers
+#: 0.9-1.1x the contract skeleton) does not cover, as CaptureConfig changes: ouster-ros's os_lidar (column 0 along +x)
+#: with the performer straight ahead, where the sweep starts and ends (the seam), and to the side; a mounting yaw; the
+#: sub-column azimuth differences between the rows that a destaggered Ouster cloud keeps; an OS0-128 (90 deg field of
+#: view), an OS2-128 (22.5 deg) and an OS1-64; small and tall performers; a raised, tilted tripod.
 SENSOR_VARIANTS = {
     "os_lidar, ahead (seam)": {"column0_azimuth_deg": 0.0},
     "os_lidar, side": {"column0_azimuth_deg": 0.0, "bearing_deg": 120.0},
@@ -204,6 +205,9 @@ SENSOR_VARIANTS = {
     "os0-128": {"sensor": "os0-128"},
     "os2-128": {"sensor": "os2-128", "bearing_deg": -30.0},
     "os1-64": {"sensor": "os1-64", "rate_hz": 10.0, "column0_azimuth_deg": 0.0, "bearing_deg": 60.0},
+    "performer 1.45 m": {"body_scale": 0.84},
+    "performer 2.0 m": {"body_scale": 1.16},
+    "tripod at 2.5 m, pitched 8, rolled -3": {"lidar_height_m": 2.5, "lidar_pitch_deg": 8.0, "lidar_roll_deg": -3.0},
 }
 
 
@@ -219,8 +223,9 @@ def variant_run(name: str) -> tuple[CaptureSession, Run, PerformerSegmenter]:
 
 
 @pytest.mark.parametrize("name", sorted(SENSOR_VARIANTS))
-def test_any_sensor_model_column_convention_and_mounting_yaw(name):
-    """Where rows and columns look is derived from the cloud: the performer is tracked as with the rig's default."""
+def test_any_sensor_model_convention_mounting_and_performer_size(name):
+    """Where rows and columns look is derived from the cloud, the ground levels it: the performer locks in the
+    T-pose and is tracked as with the rig's default."""
     session, run, segmenter = variant_run(name)
     layout, lidar = segmenter.layout, session.lidar
     assert layout.direction == -1  # an Ouster sweeps clockwise seen from above

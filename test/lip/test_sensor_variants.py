@@ -4,8 +4,8 @@ and IMUs (same seed); only what the variant changes differs.
 
 Variants so far: ouster-ros's ``os_lidar`` frame (column 0 along +x) with the performer straight ahead, across the
 sweep's seam; a mounting yaw with the performer to the side; a tripod pitched 8 deg down and rolled 3 deg; a tripod
-at 0.6 m; one at 2.5 m, pitched and rolled (its translation is the known gap: the corrector was trained with the
-LiDAR at 1.0-1.6 m).
+at 0.6 m; one at 2.5 m, pitched and rolled; performers of 1.45 m and 2.0 m. The known gaps (the networks were
+trained at 1.0-1.6 m LiDAR heights and on 0.9-1.1x bodies) are strict expected failures.
 """
 
 from __future__ import annotations
@@ -36,11 +36,22 @@ VARIANTS = {
     "tripod at 0.6 m": {"lidar_height_m": 0.6},
     "tripod at 2.5 m, pitched 8 deg, rolled -3 deg": {"lidar_height_m": 2.5, "lidar_pitch_deg": 8.0,
                                                       "lidar_roll_deg": -3.0},
+    "performer 1.45 m": {"body_scale": 0.84},
+    "performer 2.0 m": {"body_scale": 1.16},
 }
-#: Variants whose translation is not yet within MAX_RATIO, and why (the test fails, strictly, once it is).
+#: Variants not yet within MAX_RATIO on MPJPE or translation, and why (the test fails, strictly, once they are).
+_SIZES = ("the networks were trained on performers 0.9-1.1x the contract skeleton (about 1.55-1.9 m): the body "
+          "size estimate errs beyond it (retraining with sizes 0.8-1.2x is the fix)")
+POSE_GAPS = {"performer 1.45 m": _SIZES, "performer 2.0 m": _SIZES}
 TRANSLATION_GAPS = {"tripod at 2.5 m, pitched 8 deg, rolled -3 deg": "the translation corrector was trained with "
-                    "the LiDAR 1.0-1.6 m high; seen from 2.5 m it errs about 1.5x (retraining with heights 0.5-3 m "
-                    "is the fix)"}
+                    "the LiDAR 1.0-1.6 m high; seen from 2.5 m it errs about 1.3-1.5x (retraining with heights "
+                    "0.5-3 m is the fix)"}
+
+
+def _cases(gaps: dict[str, str]) -> list:
+    """Every variant, those in ``gaps`` as strict expected failures."""
+    return [pytest.param(n, marks=pytest.mark.xfail(reason=gaps[n], strict=True)) if n in gaps else n
+            for n in sorted(VARIANTS)]
 MAX_RATIO = 1.3
 
 
@@ -69,18 +80,17 @@ def bags(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("variants")
 
 
-@pytest.mark.parametrize("name", sorted(VARIANTS))
+@pytest.mark.parametrize("name", _cases(POSE_GAPS))
 def test_variant_poses_as_accurately_as_the_standard_capture(name, bags):
     mpjpe, trans, posed = errors(tuple(sorted(VARIANTS[name].items())), bags)
     mpjpe0, trans0, posed0 = errors((), bags)
     print(f"\n{name}: MPJPE {mpjpe:.1f} mm, translation {trans:.2f} cm, {posed} posed "
           f"(standard: {mpjpe0:.1f} mm, {trans0:.2f} cm, {posed0} posed)")
-    assert posed >= posed0 - 2
-    assert mpjpe <= MAX_RATIO * mpjpe0
+    assert posed >= posed0 - 2  # locked and calibrated as early, never lost
+    assert mpjpe <= MAX_RATIO * mpjpe0, f"{mpjpe:.1f} mm vs {mpjpe0:.1f} mm"
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=TRANSLATION_GAPS[n], strict=True))
-                                  if n in TRANSLATION_GAPS else n for n in sorted(VARIANTS)])
+@pytest.mark.parametrize("name", _cases(TRANSLATION_GAPS))
 def test_variant_places_the_body_as_accurately_as_the_standard_capture(name, bags):
     _, trans, _ = errors(tuple(sorted(VARIANTS[name].items())), bags)
     _, trans0, _ = errors((), bags)
