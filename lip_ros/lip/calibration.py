@@ -36,7 +36,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import combinations, pairwise
 from pathlib import Path
 from typing import NamedTuple
@@ -58,6 +58,7 @@ from lip_ros.core.rotations import (
     rot_z,
 )
 from lip_ros.core.skeleton import Skeleton, forward_kinematics, load_skeleton
+from lip_ros.lip.gait_heading import GaitHeadingConfig, stride_heading
 
 __all__ = [
     "CALIBRATION_VERSION",
@@ -117,7 +118,8 @@ class CalibrationConfig:
     max_spread_deg: float = 4.0  # largest turn of a sensor from its mean orientation within a pose window
     max_residual_deg: float = 8.0  # largest equation-11 residual of a sensor
     max_tilt_deg: float = 10.0  # largest angle between the body's up and I's z
-    max_heading_split_deg: float = 5.0  # largest difference of the body's heading seen by each turning sensor alone
+    # the body's headings seen by each turning sensor alone further apart: each DOT has its own inertial heading
+    max_heading_split_deg: float = 5.0
     min_turn_deg: float = 30.0  # a sensor that turns this much between the poses sees the body's heading alone
     gravity_weight: float = 1.0  # weight of the upright constraint against the equation-11 residuals
     min_tpose_points: int = 50
@@ -141,6 +143,24 @@ class Calibration:
     spread_deg: dict[str, float]  # per sensor: largest turn from the mean within the pose windows
     tilt_deg: float  # angle between the body's up and I's z (the upright assumption's residual)
     elongation: float | None = None  # of the T-pose cloud (None without a cloud)
+    #: rad, per sensor whose own inertial frame is not I: that frame in L is ``R_L_I @ Rz(offset)`` (0 when absent)
+    heading_offset: dict[str, float] = field(default_factory=dict)
+    #: sensors whose own inertial heading is not known yet (the ankles of DOTs not reset together, until walking
+    #: gives it: :meth:`with_heading`); such a calibration is not complete and not used
+    heading_pending: tuple[str, ...] = ()
+
+    @property
+    def complete(self) -> bool:
+        """Whether every sensor's inertial heading is known."""
+        return not self.heading_pending
+
+    @property
+    def headings(self) -> str:
+        """Which inertial headings the sensors have: one shared, or each its own (and whose are still pending)."""
+        if not self.heading_offset and not self.heading_pending:
+            return "one shared"
+        pending = f", pending for {', '.join(self.heading_pending)}" if self.heading_pending else ""
+        return f"each its own (wrists from the poses, ankles from walking){pending}"
 
     @property
     def psi(self) -> float:
@@ -155,7 +175,7 @@ class Calibration:
     def apply(self, name: str, quat: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Equations 13 and 16 for sensor ``name``: R_I_S (..., 4) xyzw and specific force (..., 3) in S
         -> bone orientation R_L_B (..., 3, 3) and free acceleration of the sensor in L (..., 3)."""
-        R_L_S = self.R_L_I @ quat_to_matrix(quat)
+        R_L_S = self.R_L_I @ rot_z(self.heading_offset.get(name, 0.0)) @ quat_to_matrix(quat)
         acc = np.einsum("...ab,...b->...a", R_L_S, np.asarray(accel, dtype=np.float64)) - GRAVITY * _UP
         return R_L_S @ self.R_B_S[name].T, acc
 
@@ -175,11 +195,12 @@ class Calibration:
             "windows": {p: [int(a), int(b)] for p, (a, b) in self.windows.items()},
             "sensors": {
                 n: {"R_B_S": quat(r), "residual_deg": float(self.residual_deg[n]),
-                    "spread_deg": float(self.spread_deg[n])}
+                    "spread_deg": float(self.spread_deg[n]), "heading_offset": self.heading_offset.get(n, 0.0)}
                 for n, r in self.R_B_S.items()
             },
             "tilt_deg": float(self.tilt_deg),
             "elongation": None if self.elongation is None else float(self.elongation),
+            "heading_pending": list(self.heading_pending),
         }
 
     @classmethod
@@ -199,7 +220,20 @@ class Calibration:
             spread_deg={n: float(s["spread_deg"]) for n, s in sensors.items()},
             tilt_deg=float(d["tilt_deg"]),
             elongation=None if d.get("elongation") is None else float(d["elongation"]),
+            heading_offset={n: float(s["heading_offset"]) for n, s in sensors.items() if s.get("heading_offset")},
+            heading_pending=tuple(str(n) for n in d.get("heading_pending", ())),
         )
+
+    def with_heading(self, name: str, heading: float, skeleton: Skeleton) -> Calibration:
+        """This calibration with sensor ``name``'s own inertial frame at ``heading`` (rad about z of L) instead of
+        I: its offset set, its mounting solved again from the T-pose, no longer pending."""
+        offset = float(np.angle(np.exp(1j * (heading - self.psi))))
+        R_I_B = self.R_I_M @ pose_bone_rotations(skeleton, (name,))["t_pose"][0]  # the bone in I in the T-pose
+        # the T-pose reading moves from Rz(old) to Rz(offset) in I: R_B_S = R_I_B^T Rz(offset) R_I_S(T)
+        turn = R_I_B.T @ rot_z(offset - self.heading_offset.get(name, 0.0)) @ R_I_B
+        return replace(self, R_B_S={**self.R_B_S, name: turn @ self.R_B_S[name]},
+                       heading_offset={**self.heading_offset, name: offset},
+                       heading_pending=tuple(n for n in self.heading_pending if n != name))
 
 
 def save_calibration(calibration: Calibration, path: str | Path) -> None:
@@ -413,28 +447,29 @@ def _solve_R_I_M(
     return axis_angle_to_matrix(x), bs_a, bs_t
 
 
-def _heading_split(R_I_S: dict[str, np.ndarray], R_M_B: dict[str, np.ndarray], names: tuple[str, ...],
-                   config: CalibrationConfig) -> str:
-    """Why the sensors cannot share one inertial frame ('' if they can): each sensor that turns between the poses
-    (the wrists) fixes the body's heading in its own inertial frame alone; one shared frame means one heading."""
+def _own_headings(R_I_S: dict[str, np.ndarray], R_M_B: dict[str, np.ndarray], config: CalibrationConfig
+                  ) -> dict[int, float]:
+    """The body's heading (rad, its forward z_M about z) in the inertial frame of each sensor that turns between
+    the poses (the wrists), from that sensor alone; index -> heading."""
     turn = _angle_deg(*(R_I_S[p] for p in POSES))
-    turning = [i for i in range(len(names)) if turn[i] >= config.min_turn_deg]
-    if len(turning) < 2:
-        return ""
     heading = {}
-    for i in turning:
+    for i in np.flatnonzero(turn >= config.min_turn_deg).tolist():
         R_I_M, _, _ = _solve_R_I_M({p: R_I_S[p][i:i + 1] for p in POSES}, {p: R_M_B[p][i:i + 1] for p in POSES},
                                    config.gravity_weight)
-        heading[names[i]] = np.arctan2(R_I_M[1, 2], R_I_M[0, 2])  # the body's forward (z_M) in that sensor's I
-    (a, ha), (b, hb) = max(combinations(heading.items(), 2),
-                           key=lambda pair: abs(np.angle(np.exp(1j * (pair[0][1] - pair[1][1])))))
-    apart = float(np.degrees(abs(np.angle(np.exp(1j * (ha - hb))))))
-    if apart <= config.max_heading_split_deg:
-        return ""
-    return (f"the DOTs do not share one inertial heading: {a} and {b} see the body's heading {apart:.0f} deg apart "
-            f"(limit {config.max_heading_split_deg:g}); DOTs keep their own heading unless it is reset for all of them "
-            "together: reset the headings (the DOT driver's heading reset; calibration_node calls it when its "
-            "heading_reset_service is set) and hold the calibration poses again")
+        heading[i] = float(np.arctan2(R_I_M[1, 2], R_I_M[0, 2]))
+    return heading
+
+
+def _heading_offsets(own: dict[int, float], config: CalibrationConfig) -> dict[int, float]:
+    """Per turning sensor, the turn (rad about z) from its own inertial frame into the first one's, if the sensors
+    see the body's heading more than ``max_heading_split_deg`` apart (each its own heading); {} if they share one."""
+    if len(own) < 2:
+        return {}
+    split = max(abs(np.angle(np.exp(1j * (a - b)))) for a, b in combinations(own.values(), 2))
+    if np.degrees(split) <= config.max_heading_split_deg:
+        return {}
+    first = next(iter(own.values()))
+    return {i: float(np.angle(np.exp(1j * (first - h)))) for i, h in own.items()}
 
 
 def calibrate(
@@ -459,7 +494,13 @@ def calibrate(
         raise CalibrationError("the A-pose window must end before the T-pose window starts (A-pose first)")
     held = {p: [_held_pose(series[n], windows[p], n, p, config) for n in names] for p in POSES}
     R_I_S = {p: np.stack([m for m, _ in held[p]]) for p in POSES}
-    R_I_M, bs_a, bs_t = _solve_R_I_M(R_I_S, pose_bone_rotations(skeleton, names), config.gravity_weight)
+    R_M_B = pose_bone_rotations(skeleton, names)
+    own = _own_headings(R_I_S, R_M_B, config)
+    offsets = _heading_offsets(own, config)
+    for i, offset in offsets.items():  # each turning sensor's readings into the first one's inertial frame
+        for p in POSES:
+            R_I_S[p][i] = rot_z(offset) @ R_I_S[p][i]
+    R_I_M, bs_a, bs_t = _solve_R_I_M(R_I_S, R_M_B, config.gravity_weight)
     residual = _angle_deg(bs_a, bs_t)
     tilt = float(np.rad2deg(np.arccos(np.clip(R_I_M[2, 1], -1.0, 1.0))))
     bad = [f"{n} {r:.1f} deg" for n, r in zip(names, residual) if r > config.max_residual_deg]
@@ -469,9 +510,6 @@ def calibrate(
     ] if bad else []
     if tilt > config.max_tilt_deg:
         problems.append(f"the body's up is {tilt:.1f} deg from vertical (limit {config.max_tilt_deg:g})")
-    split = _heading_split(R_I_S, pose_bone_rotations(skeleton, names), names, config)
-    if split:
-        problems.insert(0, split)
     if problems:
         raise CalibrationError("; ".join(problems))
     if tpose_points is None:
@@ -490,6 +528,8 @@ def calibrate(
         spread_deg={n: max(held[p][i][1] for p in POSES) for i, n in enumerate(names)},
         tilt_deg=tilt,
         elongation=elongation,
+        heading_offset={names[i]: offset for i, offset in offsets.items() if offset},
+        heading_pending=tuple(n for i, n in enumerate(names) if offsets and i not in own),
     )
 
 
@@ -501,7 +541,10 @@ class CalibrationDetector:
     :data:`MAX_SAMPLE_RATE_HZ` samples per sensor or :data:`MAX_FRAME_RATE_HZ` clouds, whatever the
     stamps do); clouds are the performer's points (N, 3) in L with their effective stamp, and those inside
     the detected T-pose window give the heading (with ``need_cloud`` it waits for them, else it assumes
-    ``config.default_heading`` when there are none).
+    ``config.default_heading`` when there are none). DOTs with their own inertial headings: once the poses
+    are solved (the wrists' headings with them), the ankles' come from the walking that follows
+    (:func:`lip_ros.lip.gait_heading.stride_heading`, on the samples and clouds after the T-pose), and the
+    calibration is complete when both are known.
     """
 
     skeleton: Skeleton = field(default_factory=load_skeleton)
@@ -510,8 +553,10 @@ class CalibrationDetector:
     need_cloud: bool = True
     calibration: Calibration | None = None
     status: str = "waiting for the calibration poses (A-pose, then T-pose, held still, facing the LiDAR)"
+    gait: GaitHeadingConfig = field(default_factory=GaitHeadingConfig)
     _samples: dict[str, deque] = field(default_factory=dict, repr=False)
     _clouds: deque = field(default_factory=deque, repr=False)
+    _poses: Calibration | None = field(default=None, repr=False)  # solved from the poses, ankle headings pending
 
     def __post_init__(self) -> None:
         self._clouds = deque(self._clouds, maxlen=int(self.horizon_s * MAX_FRAME_RATE_HZ))
@@ -545,16 +590,40 @@ class CalibrationDetector:
         if self.calibration is not None:
             return self.calibration
         streams = {n: _Samples(*map(np.array, zip(*q))) for n, q in self._samples.items() if q}
-        try:
-            windows = detect_pose_windows(streams, self.skeleton, self.config)
-            t0, t1 = windows["t_pose"]
-            clouds = [p for t, p in self._clouds if t0 <= t <= t1]
-            if self.need_cloud and not clouds:
-                raise CalibrationError("no performer cloud in the T-pose window yet")
-            points = np.concatenate(clouds) if clouds else None
-            self.calibration = calibrate(streams, points, windows, self.skeleton, self.config)
-        except CalibrationError as exc:
-            self.status = str(exc)
+        if self._poses is None:
+            try:
+                windows = detect_pose_windows(streams, self.skeleton, self.config)
+                t0, t1 = windows["t_pose"]
+                clouds = [p for t, p in self._clouds if t0 <= t <= t1]
+                if self.need_cloud and not clouds:
+                    raise CalibrationError("no performer cloud in the T-pose window yet")
+                points = np.concatenate(clouds) if clouds else None
+                self._poses = calibrate(streams, points, windows, self.skeleton, self.config)
+            except CalibrationError as exc:
+                self.status = str(exc)
+                return None
+        if not self._walk_headings(streams):
             return None
-        self.status = f"calibrated: psi {np.rad2deg(self.calibration.psi):.1f} deg ({self.calibration.heading_source})"
+        self.calibration, self._poses = self._poses, None
+        self.status = (f"calibrated: psi {np.rad2deg(self.calibration.psi):.1f} deg "
+                       f"({self.calibration.heading_source}; DOT headings: {self.calibration.headings})")
         return self.calibration
+
+    def _walk_headings(self, streams: Mapping[str, _Samples]) -> bool:
+        """Solve the pending sensors' headings from the walking after the T-pose; whether none is left pending."""
+        after = self._poses.windows["t_pose"][1]
+        track = [(t, np.median(p[:, :2], axis=0)) for t, p in self._clouds if t > after and len(p)]
+        missing = []
+        for name in self._poses.heading_pending:
+            x = ImuSeries.clean(streams[name])[0] if name in streams else None
+            found = None if x is None or len(track) < 2 else stride_heading(
+                x.stamp_ns, x.quat, x.gyro, x.accel, np.array([t for t, _ in track]),
+                np.array([c for _, c in track]), self.gait)
+            if found is not None and found.heading is not None:
+                self._poses = self._poses.with_heading(name, found.heading, self.skeleton)
+            else:
+                missing.append(f"{name}: {found.reason if found else 'no walking seen yet'}")
+        if missing:
+            self.status = ("A-pose and T-pose solved; the DOTs keep headings of their own, and the ankles' come from "
+                           "walking: walk a few steps forward (" + "; ".join(missing) + ")")
+        return not missing

@@ -168,7 +168,8 @@ class ImuStage:
         """A one-line description of the calibration state."""
         parts = []
         if self.calibration is not None:
-            parts.append(f"calibrated (heading from {self.calibration.heading_source})")
+            parts.append(f"calibrated (heading from {self.calibration.heading_source}; DOT headings: "
+                         f"{self.calibration.headings})")
         if self._detector is not None:
             parts.append(("recalibrating: " if self.calibration is not None else "") + self._detector.status)
         return "; ".join(parts)

@@ -281,7 +281,9 @@ def _run(argv: list[str]) -> int:
     if args.calibration is not None:
         summary.calibration = f"loaded from {args.calibration} (copied to {calibration})"
     elif calibration.is_file():
-        summary.calibration = f"solved from the bag's A-pose and T-pose, saved to {calibration}"
+        headings = load_calibration(calibration).headings
+        summary.calibration = (f"solved from the bag's A-pose and T-pose (DOT headings: {headings}), "
+                               f"saved to {calibration}")
     else:
         summary.calibration = "none: no A-pose / T-pose calibration was found in the bag"
     print("\n".join(summary.lines()))

@@ -93,7 +93,8 @@ def test_outputs_are_stamped_when_scanned_and_track_the_truth(replay: tuple[Path
 
 def test_the_summary_says_which_calibration_was_used(replay: tuple[Path, str]) -> None:
     out, stdout = replay
-    assert f"calibration: solved from the bag's A-pose and T-pose, saved to {out}_calibration.yaml" in stdout
+    assert ("calibration: solved from the bag's A-pose and T-pose (DOT headings: one shared), saved to "
+            f"{out}_calibration.yaml") in stdout
 
 
 def test_a_calibration_left_by_an_earlier_run_is_never_reused_silently(tmp_path: Path) -> None:

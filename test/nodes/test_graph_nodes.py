@@ -263,3 +263,4 @@ def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_no
         proc.kill()
         proc.communicate(timeout=30)
     assert statuses["calibration_node: frames"].values["DOT heading reset"] == "done: 4 DOTs reset"
+    assert statuses["calibration_node: frames"].values["DOT headings"] == "unknown"  # nothing calibrated

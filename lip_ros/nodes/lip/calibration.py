@@ -229,6 +229,8 @@ class CalibrationNode(GraphNode):
                                           "pending": self.stage.pending, "bones with a held DOT sample": self._held,
                                           "samples held for the calibration": self.stage.calibration_samples,
                                           "DOT heading reset": self._heading_reset,
+                                          "DOT headings": "unknown" if self.stage.calibration is None
+                                          else self.stage.calibration.headings,
                                           "last sync": self._last_sync, **self._latency.values("latency_ms")}
 
 
