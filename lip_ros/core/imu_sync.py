@@ -89,10 +89,13 @@ class SyncConfig:
     wait_ns: int = 200_000_000  # ready() stops waiting this long after t
     quat_norm_tolerance: float = 1e-3  # quaternions farther from unit norm are rejected
     max_clock_gap_ns: int = 10_000_000_000  # a time this far from the newest sample is on another clock
+    #: per sensor, in the synchroniser's order: how much later than its measurement a sample is stamped (a driver
+    #: that stamps on arrival); subtracted from every stamp on the way in. () = none
+    latency_ns: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if self.capacity < 2 or min(self.max_gap_ns, self.max_hold_ns, self.settle_ns, self.wait_ns,
-                                    self.max_clock_gap_ns) < 0:
+                                    self.max_clock_gap_ns, *self.latency_ns) < 0:
             raise ValueError(f"invalid {self}")
 
 
@@ -345,6 +348,10 @@ class ImuSynchronizer:
     def __init__(self, names: Iterable[str], config: SyncConfig | None = None) -> None:
         self.names = tuple(names)
         self.config = config or SyncConfig()
+        latency = self.config.latency_ns or (0,) * len(self.names)
+        if len(latency) != len(self.names):
+            raise ValueError(f"latency_ns has {len(latency)} values for the {len(self.names)} sensors {self.names}")
+        self._latency_ns = dict(zip(self.names, latency))
         self._buffers = {n: _Buffer(self.config.capacity) for n in self.names}
         self.rejected: dict[str, Counter[str]] = {n: Counter() for n in self.names}
 
@@ -364,9 +371,14 @@ class ImuSynchronizer:
             self.config.quat_norm_tolerance,
         )
 
+    def measured_ns(self, name: str, stamp_ns: int) -> int:
+        """When a sample of ``name`` stamped ``stamp_ns`` was measured: its stamp less the sensor's latency."""
+        return stamp_ns - self._latency_ns[name]
+
     def insert(self, name: str, stamp_ns: int, row: np.ndarray, code: int) -> str | None:
-        """Buffer one sample of sensor ``name`` validated by :meth:`validate`; why it was rejected, None if kept."""
-        reason = _REJECTS[code] if code >= 0 else self._buffers[name].insert(stamp_ns, row)
+        """Buffer one sample of sensor ``name`` validated by :meth:`validate` at its measurement time
+        (:meth:`measured_ns`); why it was rejected, None if kept."""
+        reason = _REJECTS[code] if code >= 0 else self._buffers[name].insert(self.measured_ns(name, stamp_ns), row)
         if reason is not None:
             self.rejected[name][reason] += 1
         return reason

@@ -138,7 +138,7 @@ class ImuStage:
         self.calibration_count = 0
         self._detector: CalibrationDetector | None = None
         # kept for the calibration, not yet shown to the detector (bounded like the detector's own buffers)
-        self._calibration_samples: deque[tuple[str, ImuSampleLike]] = deque()
+        self._calibration_samples: deque[tuple[str, int, ImuSampleLike]] = deque()  # (name, measured_ns, sample)
         self._pending: deque[_Waiting] = deque()
         if calibration is None:
             self.start_calibration()
@@ -209,9 +209,10 @@ class ImuStage:
         older than the detector's horizon are dropped (without performer frames nothing else would drop them)."""
         if reason is None and self._detector is not None:
             samples = self._calibration_samples
-            samples.append((name, sample))
-            oldest_ns = int(sample.stamp_ns) - int(self._detector.horizon_s * 1e9)
-            while samples[0][1].stamp_ns < oldest_ns:
+            measured_ns = self.sync.measured_ns(name, int(sample.stamp_ns))
+            samples.append((name, measured_ns, sample))
+            oldest_ns = measured_ns - int(self._detector.horizon_s * 1e9)
+            while samples[0][1] < oldest_ns:
                 samples.popleft()
         return reason
 
@@ -277,11 +278,11 @@ class ImuStage:
     def _try_calibrate(self, t_ns: int) -> None:
         """Show the detector the IMU samples stamped up to ``t_ns`` and try to calibrate."""
         later = deque(maxlen=self._calibration_samples.maxlen)
-        for name, sample in self._calibration_samples:
-            if sample.stamp_ns <= t_ns:
-                self._detector.add_imu(name, sample.stamp_ns, sample.quat, sample.gyro, sample.accel)
+        for name, measured_ns, sample in self._calibration_samples:
+            if measured_ns <= t_ns:
+                self._detector.add_imu(name, measured_ns, sample.quat, sample.gyro, sample.accel)
             else:
-                later.append((name, sample))
+                later.append((name, measured_ns, sample))
         self._calibration_samples = later
         cal = self._detector.update()
         if cal is not None:

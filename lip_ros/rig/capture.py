@@ -9,7 +9,7 @@ capture started (the motion's time 0).
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -52,6 +52,8 @@ class CaptureConfig:
     second_person: bool = False
     max_mount_deg: float = 40.0
     imu_heading_spread_deg: float = 0.0  # each DOT's own inertial heading within +-this of the others' (0: reset)
+    imu_latency_ms: tuple[float, float] = (0.0, 0.0)  # each DOT stamped on arrival, late by a constant in this range
+    imu_latency_jitter_ms: float = 0.0  # ... plus |normal| of this std per sample
     body_scale: float | None = None  # the performer's size, times the contract skeleton's (None: random 0.9-1.1)
     imu_noise: bool = True
 
@@ -68,6 +70,7 @@ class CaptureConfig:
         d = asdict(self)
         d["azimuth_window_deg"] = None if self.azimuth_window_deg is None else list(self.azimuth_window_deg)
         d["beam_azimuth_deg"] = list(self.beam_azimuth_deg)
+        d["imu_latency_ms"] = list(self.imu_latency_ms)
         return d
 
 
@@ -142,7 +145,8 @@ class CaptureSession:
                                           column0_azimuth_deg=cfg.column0_azimuth_deg,
                                           beam_azimuth_deg=tuple(cfg.beam_azimuth_deg))
         imu_config = ImuRigConfig.lip(self.motion.skeleton, max_mount_deg=cfg.max_mount_deg,
-                                      heading_spread_deg=cfg.imu_heading_spread_deg)
+                                      heading_spread_deg=cfg.imu_heading_spread_deg,
+                                      latency_s=(cfg.imu_latency_ms[0] * 1e-3, cfg.imu_latency_ms[1] * 1e-3))
         self.imu_truth = make_imu_truth(self.motion.skeleton, imu_config, np.random.default_rng([cfg.seed, 102]))
 
     @property
@@ -198,6 +202,7 @@ class CaptureSession:
     def imu_streams(self) -> dict[str, ImuStream]:
         """The four DOT streams over the whole capture, stamps on the capture clock."""
         noise = ImuNoise() if self.config.imu_noise else ImuNoise.none()
+        noise = replace(noise, latency_jitter=self.config.imu_latency_jitter_ms * 1e-3)
         streams = simulate_imus(self.motion, self.imu_truth, 0.0, self.motion.duration, noise,
                                 np.random.default_rng([self.config.seed, 103]))
         for s in streams.values():

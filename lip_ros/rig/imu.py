@@ -16,7 +16,10 @@ small step ``h`` around each measurement time: ``a_L = (p(t+h) - 2 p(t) + p(t-h)
 and ``w_S = log(R_L_S(t-h)^T R_L_S(t+h)) / (2 h)``.
 Stamps are int64 nanoseconds on the trajectory's clock (seconds since the
 capture started) plus the rig's clock offset: the measurement time plus a small
-clock jitter, never an arrival time.
+clock jitter, or, with a latency (``ImuSpec.latency_s``, ``ImuNoise.latency_jitter``),
+the arrival time of a driver that stamps on arrival (DOTs over Bluetooth): the
+measurement time plus the sensor's constant latency plus a random delay, in
+arrival order.
 """
 
 from __future__ import annotations
@@ -63,6 +66,7 @@ class ImuSpec:
     offset_in_bone: np.ndarray
     phase_s: float = 0.0
     heading_offset: float = 0.0  # rad, this sensor's inertial heading minus the rig's psi (0: the shared one)
+    latency_s: float = 0.0  # its stamps are this much later than the measurement (a driver stamping on arrival)
 
 
 @dataclass(frozen=True)
@@ -88,13 +92,15 @@ class ImuRigConfig:
     surface_m: float = 0.0
     max_clock_offset_s: float = 0.0
     heading_spread_deg: float = 0.0  # each sensor's own inertial heading is psi + uniform(+-this) (0: one heading)
+    latency_s: tuple[float, float] = (0.0, 0.0)  # each sensor's stamps late by a constant uniform in this range
 
     @classmethod
-    def lip(cls, skeleton: Skeleton, max_mount_deg: float = 40.0, heading_spread_deg: float = 0.0) -> ImuRigConfig:
+    def lip(cls, skeleton: Skeleton, max_mount_deg: float = 40.0, heading_spread_deg: float = 0.0,
+            latency_s: tuple[float, float] = (0.0, 0.0)) -> ImuRigConfig:
         """The LIP rig: the contract's four DOTs (``lip_imus``), ~60 Hz +-0.5 %, near the wrists and ankles."""
         sensors = tuple((name, s["bone_joint"], IMU_TOPICS[name]) for name, s in skeleton.lip_imus.items())
         return cls(sensors, 60.0, rate_tol=0.005, max_mount_deg=max_mount_deg, along=0.85, surface_m=0.035,
-                   heading_spread_deg=heading_spread_deg)
+                   heading_spread_deg=heading_spread_deg, latency_s=latency_s)
 
     @classmethod
     def suit(cls, skeleton: Skeleton) -> ImuRigConfig:
@@ -130,6 +136,7 @@ class ImuTruth:
                     "phase_s": float(s.phase_s),
                     "R_B_S": np.asarray(s.R_B_S).tolist(),
                     "heading_offset": float(s.heading_offset),
+                    "latency_s": float(s.latency_s),
                     "offset_in_bone": np.asarray(s.offset_in_bone).tolist(),
                 }
                 for s in self.specs
@@ -147,8 +154,10 @@ class ImuNoise:
     I, is ``Rz(heading) @ exp([roll, pitch, 0])``: roll and pitch a stationary
     first-order Gauss-Markov process (std ``tilt``, correlation time ``tilt_tau``),
     heading a random walk from zero. Stamps deviate from the measurement time by
-    a normal of std ``stamp_jitter`` clipped at 3 std; each sample is lost with
-    probability ``drop_prob``.
+    a normal of std ``stamp_jitter`` clipped at 3 std; a sensor with a latency
+    is stamped on arrival, each sample delayed by its latency plus the absolute
+    value of a normal of std ``latency_jitter`` and never before the one before;
+    each sample is lost with probability ``drop_prob``.
     """
 
     gyro_noise: float = float(np.deg2rad(0.007))  # rad/s/sqrt(Hz)
@@ -161,6 +170,7 @@ class ImuNoise:
     tilt_tau: float = 20.0  # s
     heading_walk: float = float(np.deg2rad(2.0) / np.sqrt(60.0))  # rad/sqrt(s): 2 deg std after a minute
     stamp_jitter: float = 0.5e-3  # s
+    latency_jitter: float = 0.0  # s, of the arrival delay of sensors with a latency
     drop_prob: float = 0.002
 
     def __post_init__(self) -> None:
@@ -241,6 +251,8 @@ def make_imu_truth(skeleton: Skeleton, config: ImuRigConfig, rng: np.random.Gene
     if config.heading_spread_deg > 0.0:  # drawn last: without a spread the rig draws what it always drew
         spread = np.deg2rad(config.heading_spread_deg)
         specs = [replace(s, heading_offset=float(rng.uniform(-spread, spread))) for s in specs]
+    if config.latency_s[1] > 0.0:  # likewise
+        specs = [replace(s, latency_s=float(rng.uniform(*config.latency_s))) for s in specs]
     return ImuTruth(tuple(specs), float(psi), float(offset_s))
 
 
@@ -351,6 +363,10 @@ def simulate_imus(
         gyro_err, accel_err, R_err, stamp_err = _errors(noise, spec.rate_hz, t.size, rng)
         keep = rng.random(t.size) >= noise.drop_prob
         stamp_ns = np.rint((t + truth.clock_offset_s + stamp_err) * 1e9).astype(np.int64)
+        if spec.latency_s > 0.0:  # stamped on arrival, in order
+            delay = spec.latency_s + np.abs(rng.normal(scale=noise.latency_jitter, size=t.size))
+            stamp_ns = np.maximum.accumulate(stamp_ns + np.rint(delay * 1e9).astype(np.int64))
+            stamp_ns += np.arange(t.size)  # strictly increasing (1 ns apart at worst)
         streams[spec.name] = ImuStream(
             name=spec.name,
             topic=spec.topic,

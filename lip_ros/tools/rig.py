@@ -26,7 +26,8 @@ def _make_bag(args: argparse.Namespace) -> int:
                            bearing_deg=args.bearing, sensor=args.sensor, columns=args.columns,
                            lidar_height_m=args.lidar_height, lidar_pitch_deg=args.lidar_pitch,
                            lidar_roll_deg=args.lidar_roll, body_scale=args.body_scale,
-                           imu_heading_spread_deg=args.imu_heading_spread,
+                           imu_heading_spread_deg=args.imu_heading_spread, imu_latency_ms=tuple(args.imu_latency),
+                           imu_latency_jitter_ms=args.imu_latency_jitter,
                            azimuth_window_deg=window, column0_azimuth_deg=args.column0_azimuth,
                            beam_azimuth_deg=tuple(args.beam_azimuth), clutter=not args.no_clutter,
                            second_person=args.second_person, max_mount_deg=args.max_mount_deg)
@@ -71,6 +72,10 @@ def parser() -> argparse.ArgumentParser:
                    help="the performer's size times the contract skeleton's, about 1.72 m (default: random 0.9-1.1)")
     m.add_argument("--imu-heading-spread", type=float, default=CaptureConfig.imu_heading_spread_deg, metavar="DEG",
                    help="each DOT's own inertial heading within +-DEG of the rig's (default 0: reset together)")
+    m.add_argument("--imu-latency", type=float, nargs=2, default=CaptureConfig.imu_latency_ms, metavar=("LO", "HI"),
+                   help="each DOT stamped on arrival, late by a constant drawn in [LO, HI] ms (default: not late)")
+    m.add_argument("--imu-latency-jitter", type=float, default=CaptureConfig.imu_latency_jitter_ms, metavar="MS",
+                   help="plus |normal| of this std per sample (with --imu-latency)")
     m.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=1024)
     m.add_argument("--azimuth-window", type=float, nargs=2, metavar=("START", "END"),
                    help="Ouster azimuth window in encoder degrees from column 0, in sweep order (with the default "

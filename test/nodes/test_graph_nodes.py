@@ -101,6 +101,8 @@ def test_calibration_state_is_latched_and_controlled_by_services(ros_node, saved
     ("segmentation_node", ["-p", "lidar_rate_hz:=-1.0"], "lidar_rate_hz must be > 0"),
     ("segmentation_node", ["-p", "lidar_rate_hz:=fast"], "lidar_rate_hz"),
     ("calibration_node", ["-p", "imu_topics:=[/a, /b]"], "imu_topics needs 4 topics"),
+    ("calibration_node", ["-p", "dot_latency_s:=[0.03, 0.04]"], "dot_latency_s must be a list of 0 or 4 finite"),
+    ("calibration_node", ["-p", "dot_latency_s:=[0.03, 0.04, -0.01, 0.02]"], "dot_latency_s must not be negative"),
     ("segmentation_node", ["-p", "lock_rule:=wave"], "lock_rule must be one of t_pose, still"),
     ("segmentation_node", ["-p", "lock_rule:=still"], "lock_rule 'still' needs expected_xy"),
     ("segmentation_node", ["-p", "expected_xy:=[1.0]"], "expected_xy must be a list of 0 or 2 finite numbers"),
@@ -247,7 +249,7 @@ def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_no
         DiagnosticArray, "/diagnostics", lambda m: statuses.update((s.name, s) for s in msg_to_diagnostics(m).statuses),
         10)
     proc = _start("calibration_node", "-p", "heading_reset_service:=/test_dot/reset_heading",
-                  "-p", "diagnostics_period_s:=0.3")
+                  "-p", "diagnostics_period_s:=0.3", "-p", "dot_latency_s:=[0.03, 0.04, 0.05, 0.061]")
     try:
         _spin_until(ros_node, lambda: len(calls) == 1, proc)
         start = ros_node.create_client(Trigger, "/lip/start_calibration")
@@ -264,3 +266,5 @@ def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_no
         proc.communicate(timeout=30)
     assert statuses["calibration_node: frames"].values["DOT heading reset"] == "done: 4 DOTs reset"
     assert statuses["calibration_node: frames"].values["DOT headings"] == "unknown"  # nothing calibrated
+    assert (statuses["calibration_node: frames"].values["DOT latency taken off (ms)"]
+            == "left_wrist 30, right_wrist 40, left_ankle 50, right_ankle 61")

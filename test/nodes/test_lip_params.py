@@ -52,6 +52,7 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults():
     assert round(cal["max_imu_hold_s"] * NS) == sync.max_hold_ns
     assert round(cal["imu_wait_s"] * NS) == sync.wait_ns
     assert round(cal["max_clock_gap_s"] * NS) == sync.max_clock_gap_ns
+    assert tuple(cal["dot_latency_s"]) == sync.latency_ns == ()
     assert cal["max_pending_frames"] == MAX_PENDING_FRAMES == PipelineConfig().max_pending_frames
     assert round(pose["max_pose_gap_s"] * NS) == MAX_POSE_GAP_NS
     seg, segmentation = node_defaults(LIP_PARAMS_FILE, "segmentation_node"), SegmentationConfig()

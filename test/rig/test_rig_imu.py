@@ -249,6 +249,24 @@ def test_stamp_jitter_and_order(skel, lip):
         simulate_imus(standing(skel), lip, 0.0, 1.0, replace(EXACT, stamp_jitter=3e-3), np.random.default_rng(0))
 
 
+def test_latency_stamps_on_arrival(skel):
+    """A sensor with a latency is stamped its latency plus a non-negative random delay late, in arrival order; the
+    latencies are drawn per sensor in the configured range, after everything else (the same rig otherwise)."""
+    config = ImuRigConfig.lip(skel, latency_s=(0.02, 0.06))
+    truth = make_imu_truth(skel, config, np.random.default_rng(7))
+    assert replace(truth, specs=tuple(replace(s, latency_s=0.0) for s in truth.specs)).as_dict() == \
+        make_imu_truth(skel, ImuRigConfig.lip(skel), np.random.default_rng(7)).as_dict()
+    latency = np.array([s.latency_s for s in truth.specs])
+    assert np.all((latency >= 0.02) & (latency <= 0.06)) and np.ptp(latency) > 0.005
+    streams = simulate_imus(standing(skel), truth, 0.0, 60.0, replace(EXACT, latency_jitter=0.005),
+                            np.random.default_rng(0))
+    for spec in truth.specs:
+        s = streams[spec.name]
+        late = s.stamp_ns * 1e-9 - s.t_true - spec.latency_s
+        assert late.min() >= -1e-9 and np.median(late) == pytest.approx(0.005 * 0.674, abs=0.001)  # |N(0, 5 ms)|
+        assert np.all(np.diff(s.stamp_ns) > 0)
+
+
 def test_drops_at_configured_probability(skel, lip):
     streams = simulate_imus(standing(skel), lip, 0.0, 100.0, replace(EXACT, drop_prob=0.1), np.random.default_rng(0))
     kept = sum(len(s.index) for s in streams.values())

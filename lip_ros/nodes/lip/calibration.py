@@ -53,6 +53,7 @@ from lip_ros.nodes.base import (
     LatencyWindow,
     Param,
     ParameterError,
+    numbers,
     positive,
     run_nodes,
 )
@@ -66,6 +67,13 @@ __all__ = ["CalibrationNode", "main"]
 def _four_topics(value: Any) -> str | None:
     return None if len(value) == len(IMU_NAMES) else (
         f"needs {len(IMU_NAMES)} topics, in the order {', '.join(IMU_NAMES)}; got {len(value)}")
+
+
+def _latencies(value: Any) -> str | None:
+    problem = numbers(0, len(IMU_NAMES))(value)
+    if problem is None and any(v < 0 for v in value):
+        problem = f"must not be negative, got {value!r}"
+    return problem
 
 
 class CalibrationNode(GraphNode):
@@ -90,6 +98,9 @@ class CalibrationNode(GraphNode):
         "max_pending_frames": Param("frames that may wait for DOT data; older ones are skipped", positive),
         "max_clock_gap_s": Param("a frame stamped this far from the newest DOT sample is on another clock: skipped, "
                                  "ERROR on /diagnostics", positive),
+        "dot_latency_s": Param("per DOT, order as imu_topics: how much later than measured its driver stamps a sample "
+                               "(on arrival over Bluetooth: tens of ms), taken off every stamp ([] = none)",
+                               _latencies, any_type=True),
     }
 
     def __init__(self, **kwargs: Any) -> None:
@@ -97,12 +108,14 @@ class CalibrationNode(GraphNode):
         p = self.params
         file = Path(p["calibration_file"]).expanduser() if p["calibration_file"] else None
         sync = SyncConfig(max_gap_ns=int(p["max_imu_gap_s"] * 1e9), max_hold_ns=int(p["max_imu_hold_s"] * 1e9),
-                          wait_ns=int(p["imu_wait_s"] * 1e9), max_clock_gap_ns=int(p["max_clock_gap_s"] * 1e9))
+                          wait_ns=int(p["imu_wait_s"] * 1e9), max_clock_gap_ns=int(p["max_clock_gap_s"] * 1e9),
+                          latency_ns=tuple(round(v * 1e9) for v in p["dot_latency_s"]))
         try:
             self.stage = ImuStage(sync, calibration_file=file, max_pending=p["max_pending_frames"])
         except (OSError, ValueError, KeyError, CalibrationError) as exc:
             raise ParameterError(f"cannot load calibration_file {file}: {exc}") from exc
         self._latency = LatencyWindow()
+        self._dot_latency = ", ".join(f"{n} {v * 1e3:g}" for n, v in zip(IMU_NAMES, p["dot_latency_s"])) or "none"
         self._bone_pubs = [self.create_publisher(Imu, topic, BETWEEN_NODES) for topic in p["bone_topics"]]
         self._state_pub = self.create_publisher(String, p["calibration_topic"], LATCHED)
         self._published_state: tuple[int, bool] | None = None
@@ -229,6 +242,7 @@ class CalibrationNode(GraphNode):
                                           "pending": self.stage.pending, "bones with a held DOT sample": self._held,
                                           "samples held for the calibration": self.stage.calibration_samples,
                                           "DOT heading reset": self._heading_reset,
+                                          "DOT latency taken off (ms)": self._dot_latency,
                                           "DOT headings": "unknown" if self.stage.calibration is None
                                           else self.stage.calibration.headings,
                                           "last sync": self._last_sync, **self._latency.values("latency_ms")}
