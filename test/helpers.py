@@ -1,10 +1,14 @@
-"""Shared by the tests that start the package's executables as separate processes."""
+"""Shared by the tests: the package's executables started as separate processes, the bundled demo bag, the online
+calibration fed as data comes."""
 
 from __future__ import annotations
 
 import shutil
 import sys
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
+
+import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO_BAG = REPO / "bags" / "demo_walk"
@@ -15,3 +19,23 @@ def console_script(name: str) -> str:
     exe = shutil.which(name, path=str(Path(sys.executable).parent))
     assert exe, f"{name} console script not installed in this environment"
     return exe
+
+
+def feed_detector(detector, streams: Mapping, clouds: Sequence[tuple[int, np.ndarray]], every_ns: int = 250_000_000
+                  ) -> Iterator[int]:
+    """Feed a :class:`~lip_ros.lip.calibration.CalibrationDetector` the rig's DOT streams and (stamp, points) clouds in
+    stamp order, calling ``update`` every ``every_ns``; yields each stamp it was called at, until it calibrated."""
+    events = sorted([(int(x.stamp_ns[k]), 0, n, k) for n, x in streams.items() for k in range(len(x.stamp_ns))]
+                    + [(t, 1, "", i) for i, (t, _) in enumerate(clouds)])
+    next_update = events[0][0]
+    for stamp, kind, name, k in events:
+        if kind == 0:
+            x = streams[name]
+            detector.add_imu(name, stamp, x.quat[k], x.gyro[k], x.accel[k])
+        else:
+            detector.add_cloud(stamp, clouds[k][1])
+        if stamp >= next_update:
+            next_update += every_ns
+            yield stamp
+            if detector.update() is not None:
+                return

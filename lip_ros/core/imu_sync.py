@@ -407,9 +407,13 @@ class ImuSynchronizer:
 def sync_batch(
     streams: Mapping[str, ImuArrays], t_ns: np.ndarray, config: SyncConfig | None = None
 ) -> list[SyncResult]:
-    """Every sensor of ``streams`` (samples in arrival order) at each of the times ``t_ns`` (T,)."""
+    """Every sensor of ``streams`` (samples in arrival order) at each of the times ``t_ns`` (T,), each sensor's
+    ``config.latency_ns`` (in the order of ``streams``) taken off its stamps."""
     config = config or SyncConfig()
     t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+    latency = config.latency_ns or (0,) * len(streams)
+    if len(latency) != len(streams):
+        raise ValueError(f"latency_ns has {len(latency)} values for the {len(streams)} sensors {tuple(streams)}")
     series = [ImuSeries.clean(s, config.quat_norm_tolerance)[0] for s in streams.values()]
-    per_sensor = [_interpolate(s.stamp_ns, s._rows(), t, config) for s in series]
+    per_sensor = [_interpolate(s.stamp_ns - late, s._rows(), t, config) for s, late in zip(series, latency)]
     return _assemble(tuple(streams), t, per_sensor)

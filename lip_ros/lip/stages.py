@@ -132,6 +132,9 @@ class ImuStage:
         self.max_pending = max_pending
         if calibration is None and calibration_file is not None and calibration_file.is_file():
             calibration = load_calibration(calibration_file)
+        if calibration is not None and not calibration.complete:
+            raise ValueError(f"the calibration does not know the inertial headings of "
+                             f"{', '.join(calibration.heading_pending)} (it needs walking after the poses)")
         self.calibration = calibration
         self.level: np.ndarray | None = None  # R_L_P (3, 3), the level frame in L (None: L is level)
         #: Increases whenever the calibration changes (solved, reset): poses before and after do not chain.

@@ -240,6 +240,8 @@ def test_latency_is_taken_off_each_sensors_stamps():
         np.testing.assert_allclose(b.quat, a.quat, atol=1e-12)
         assert np.abs(c.quat - a.quat).max() > 1e-3  # without the latency taken off, another moment
     check_analytic([corrected.query(t_ns) for t_ns in t.tolist()], rates)
+    batch = sync_batch(late, t, SyncConfig(latency_ns=tuple(v * MS for v in latency_ms)))
+    np.testing.assert_allclose([r.quat for r in batch], [plain.query(t_ns).quat for t_ns in t.tolist()], atol=1e-12)
     with pytest.raises(ValueError, match="latency_ns has 1 values"):
         ImuSynchronizer(names, SyncConfig(latency_ns=(MS,)))
     with pytest.raises(ValueError, match="invalid"):

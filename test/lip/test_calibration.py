@@ -6,6 +6,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
+from helpers import feed_detector
 
 from lip_ros.core.body import BodyModel
 from lip_ros.core.frames import R_L_M_FACING_X
@@ -280,25 +281,13 @@ def test_yaml_round_trip(one, tmp_path):
 def test_online_detector(one):
     """Samples and clouds fed as they come: no calibration until the T-pose was held, then the batch one."""
     detector = CalibrationDetector()
-    events = sorted([(int(x.stamp_ns[k]), 0, n, k) for n, x in one.streams.items() for k in range(len(x.stamp_ns))]
-                    + [(t, 1, "", i) for i, (t, _) in enumerate(one.clouds)])
     t_pose = one.phases["t_pose"]
     done_at, statuses = None, set()
-    next_update = events[0][0]
-    for stamp, kind, name, k in events:
-        if kind == 0:
-            x = one.streams[name]
-            detector.add_imu(name, stamp, x.quat[k], x.gyro[k], x.accel[k])
-        else:
-            detector.add_cloud(stamp, one.clouds[k][1])
-        if stamp >= next_update:
-            next_update += 250 * MS
-            if detector.update() is not None:
-                done_at = stamp
-                break
-            statuses.add(detector.status)
+    for stamp in feed_detector(detector, one.streams, one.clouds):
+        statuses.add(detector.status)
+        done_at = stamp
     assert "1 still pose(s) found, but no A-pose followed by a T-pose" in " ".join(statuses)  # the A-pose alone
-    assert done_at is not None and t_pose[0] + 1e9 <= done_at <= t_pose[1]
+    assert detector.calibration is not None and t_pose[0] + 1e9 <= done_at <= t_pose[1]
     cal = detector.calibration
     assert cal.heading_source == "cloud" and detector.status.startswith("calibrated")
     batch = calibrate(one.streams, one.points)

@@ -8,11 +8,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from helpers import feed_detector
 
 from lip_ros.core.rotations import geodesic_angle
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.lip.calibration import POSES, CalibrationDetector, calibrate, load_calibration, save_calibration
 from lip_ros.lip.gait_heading import stride_heading
+from lip_ros.lip.stages import ImuStage
 from lip_ros.rig.capture import CaptureConfig, CaptureSession
 from lip_ros.rig.imu import ImuStream
 
@@ -75,6 +77,8 @@ def test_wrists_are_calibrated_each_in_its_own_frame_and_the_ankles_wait(spread_
         assert bone_error_deg(cal, w, name) <= 2.0
         sensor_heading = cal.psi + cal.heading_offset.get(name, 0.0)
         assert abs(wrap_deg(sensor_heading - w.true_heading(name))) <= 2.0
+    with pytest.raises(ValueError, match="does not know the inertial headings of left_ankle, right_ankle"):
+        ImuStage(calibration=cal)  # never used before it is complete
     reset = walk(4, spread_deg=0.0)  # the same capture after a heading reset: one frame, nothing pending
     shared = calibrate(reset.streams)
     assert shared.complete and not shared.heading_offset
@@ -115,25 +119,14 @@ def test_online_detector_asks_for_walking_then_calibrates(tmp_path):
     calibrated within 10 s of walking with every bone within 2.5 deg; the file keeps the headings."""
     w = walk(1)
     detector = CalibrationDetector()
-    events = sorted([(int(x.stamp_ns[k]), 0, n, k) for n, x in w.streams.items() for k in range(len(x.stamp_ns))]
-                    + [(t, 1, "", i) for i, (t, _) in enumerate(w.clouds)])
-    statuses, next_update, done_at = [], events[0][0], None
-    for stamp, kind, name, k in events:
-        if kind == 0:
-            x = w.streams[name]
-            detector.add_imu(name, stamp, x.quat[k], x.gyro[k], x.accel[k])
-        else:
-            detector.add_cloud(stamp, w.clouds[k][1])
-        if stamp >= next_update:
-            next_update += 250_000_000
-            if detector.update() is not None:
-                done_at = stamp
-                break
-            statuses.append(detector.status)
+    statuses, done_at = [], None
+    for stamp in feed_detector(detector, w.streams, w.clouds):
+        statuses.append(detector.status)
+        done_at = stamp
     walking = [s for s in statuses if "walk a few steps forward" in s]
     assert walking and any("of 3 walking strides seen" in s for s in walking)
     walk_start = next(a for n, a, _ in w.session.phases_ns() if n == "walk")
-    assert done_at is not None and done_at - walk_start <= 10e9
+    assert detector.calibration is not None and done_at - walk_start <= 10e9
     cal = detector.calibration
     assert cal.complete and "DOT headings: each its own" in detector.status
     assert max(bone_error_deg(cal, w, n) for n in (*WRISTS, *ANKLES)) <= 2.5
