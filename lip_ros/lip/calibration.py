@@ -24,6 +24,12 @@ sensor reports ``R_I_S(X) = R_I_M @ R_M_B(X) @ R_B_S``. Unknown are ``R_I_M``
 * Equations 13 and 16 then give every sample's bone orientation and free
   acceleration in L: ``R_L_B = R_L_I @ R_I_S @ R_B_S^T`` and
   ``a_L = R_L_I @ R_I_S @ f_S - [0, 0, g]`` (``f_S`` the specific force).
+* DOTs not heading-reset together do not share I: each wrist alone fixes the
+  body's heading in its own frame, and when the two disagree (more than
+  ``max_heading_split_deg``) each sensor gets its own, ``R_L_Ii = R_L_I @
+  Rz(heading_offset)`` with I the first wrist's; the wrists' offsets follow
+  from the poses, the ankles' (``heading_pending``) from the walking after
+  them (:mod:`lip_ros.lip.gait_heading`, :meth:`Calibration.with_heading`).
 
 The still A-pose and T-pose windows are found automatically (all four sensors
 still; the wrists turned as the poses say between the two, the ankles did not)
