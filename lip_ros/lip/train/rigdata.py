@@ -7,7 +7,9 @@ the truth at the frame's pose time (frame stamp + mean ``t`` of the
 performer's points, docs/conventions.md):
 
 * ``points`` (P, 3) float32, the performer's points in L of all frames,
-  frame k being ``points[offsets[k]:offsets[k + 1]]`` (empty if none);
+  frame k being ``points[offsets[k]:offsets[k + 1]]`` (empty if none); a
+  tilted LiDAR's points are levelled first (L here is always level, as the
+  pipeline makes it with the fitted ground);
 * ``imu_rot`` (T, 4, 3, 3) bone orientations R_L_B and ``imu_acc`` (T, 4, 3)
   free accelerations in L, order :data:`lip_ros.lip.nets.config.IMU_NAMES`: the
   simulator's noisy DOT readings (orientation R_I_S, specific force f_S)
@@ -38,7 +40,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from lip_ros.core.body import BodyModel
-from lip_ros.core.rotations import axis_angle_to_matrix, rot_z
+from lip_ros.core.rotations import axis_angle_to_matrix, rot_x, rot_y, rot_z
 from lip_ros.lip.sensors import IMU_NAMES
 from lip_ros.rig.imu import GRAVITY, ImuNoise, ImuRigConfig, ImuStream, make_imu_truth, simulate_imus
 from lip_ros.rig.lidar import Actor, OusterModel
@@ -65,7 +67,7 @@ VAL_SEEDS = range(500_000, 1_000_000)
 EVAL_SEED_MIN = 1_000_000
 #: Where ``lip_train`` caches simulated sequences unless told otherwise.
 DEFAULT_DATA_DIR = Path.home() / ".cache" / "lip_ros" / "rigdata"
-_CACHE_VERSION = 1
+_CACHE_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -80,6 +82,9 @@ class SequenceSpec:
     area_radius_m: float = 2.5
     calibration: bool = True  # start with the A-pose / T-pose calibration
     calib_error_deg: float = 2.0  # max calibration error per rotation (0: exact calibration)
+    body_scale: float | None = None  # the performer's size times the contract skeleton's (None: drawn 0.9-1.1)
+    lidar_pitch_deg: float = 0.0  # the LiDAR tilted (as CaptureConfig); the points are levelled, as the pipeline does
+    lidar_roll_deg: float = 0.0
 
     def key(self) -> str:
         """Cache file stem: readable seed and distance plus a hash of the whole spec."""
@@ -112,17 +117,28 @@ class RigSequence:
         return self.points[self.offsets[k] : self.offsets[k + 1]]
 
 
+#: Ranges of the training and validation specs (:func:`spec_for_seed`).
+DISTANCE_M = (4.0, 25.0)
+LIDAR_HEIGHT_M = (0.5, 3.0)
+BODY_SCALE = (0.8, 1.2)  # about 1.38-2.06 m
+MAX_TILT_DEG = 10.0  # each of pitch and roll
+
+
 def spec_for_seed(seed: int, seconds: float = 30.0) -> SequenceSpec:
-    """A training/validation spec: distance 4-25 m, any bearing, LiDAR 1.0-1.6 m high, and one in four
-    starting with the calibration poses (if ``seconds`` leaves 10 s after them)."""
+    """A training/validation spec: distance 4-25 m, any bearing, the LiDAR 0.5-3 m high and tilted up to 10 deg in
+    pitch and roll, a performer 0.8-1.2x the contract skeleton, and one in four starting with the calibration poses
+    (if ``seconds`` leaves 10 s after them)."""
     rng = np.random.default_rng([seed, 7_000])
     return SequenceSpec(
         seed=int(seed),
-        distance_m=round(float(rng.uniform(4.0, 25.0)), 1),
+        distance_m=round(float(rng.uniform(*DISTANCE_M)), 1),
         bearing_deg=round(float(rng.uniform(-180.0, 180.0)), 1),
         seconds=seconds,
-        lidar_height_m=round(float(rng.uniform(1.0, 1.6)), 2),
+        lidar_height_m=round(float(rng.uniform(*LIDAR_HEIGHT_M)), 2),
         calibration=bool(rng.random() < 0.25) and seconds >= calibration_duration(seed) + 10.0,
+        body_scale=round(float(rng.uniform(*BODY_SCALE)), 3),
+        lidar_pitch_deg=round(float(rng.uniform(-MAX_TILT_DEG, MAX_TILT_DEG)), 1),
+        lidar_roll_deg=round(float(rng.uniform(-MAX_TILT_DEG, MAX_TILT_DEG)), 1),
     )
 
 
@@ -158,10 +174,12 @@ def make_sequence(spec: SequenceSpec) -> RigSequence:
     """Simulate one sequence (deterministic in ``spec``)."""
     bearing = np.deg2rad(spec.bearing_deg)
     centre = spec.distance_m * np.array([np.cos(bearing), np.sin(bearing), 0.0])
-    motion = random_motion(spec.seed, spec.seconds, centre, spec.lidar_height_m, spec.area_radius_m, spec.calibration)
+    motion = random_motion(spec.seed, spec.seconds, centre, spec.lidar_height_m, spec.area_radius_m, spec.calibration,
+                           spec.body_scale)
     rng = np.random.default_rng([spec.seed, 7_001])
     body = BodyModel(motion.skeleton, girth=float(rng.uniform(0.9, 1.15)))
-    lidar = OusterModel.os1_128()
+    R_S_L = rot_y(np.radians(spec.lidar_pitch_deg)) @ rot_x(np.radians(spec.lidar_roll_deg))  # L in the level world
+    lidar = OusterModel.os1_128(rotation=R_S_L)
     actors = [Actor(body, motion)]
     num_frames = int(np.floor(motion.duration * lidar.rate_hz + 1e-9))
     clouds, pose_time = [], np.empty(num_frames)
@@ -169,7 +187,7 @@ def make_sequence(spec: SequenceSpec) -> RigSequence:
         frame = lidar.scan(k * lidar.period_ns, None, actors, np.random.default_rng([spec.seed, 7_002, k]))
         mine = frame.labels == 0
         pts = frame.points[mine]
-        clouds.append(np.stack([pts["x"], pts["y"], pts["z"]], axis=-1).astype(np.float32))
+        clouds.append((np.stack([pts["x"], pts["y"], pts["z"]], axis=-1) @ R_S_L.T).astype(np.float32))
         t_ns = k * lidar.period_ns + pts["t"].astype(np.float64).mean() if mine.any() else frame.actor_stamps_ns[0]
         pose_time[k] = float(t_ns) * 1e-9
     pose = motion.sample(pose_time)

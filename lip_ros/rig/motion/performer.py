@@ -350,10 +350,11 @@ def random_motion(
     lidar_height: float,
     area_radius: float = 3.0,
     calibration: bool = True,
+    body_scale: float | None = None,
 ) -> PerformerMotion:
-    """``make_motion`` with a scenario and body scale drawn from ``seed`` (training data)."""
+    """``make_motion`` with a scenario drawn from ``seed``, and the body scale unless given (training data)."""
     scenario = random_scenario(np.random.default_rng([seed, 4]))
     budget = duration_s - (calibration_duration(seed) if calibration else 0.0)
     if budget < MIN_DURATION[scenario]:
         scenario = "mixed"
-    return make_motion(scenario, duration_s, seed, centre, lidar_height, area_radius, None, calibration)
+    return make_motion(scenario, duration_s, seed, centre, lidar_height, area_radius, body_scale, calibration)
