@@ -55,6 +55,7 @@ class CaptureConfig:
     imu_latency_ms: tuple[float, float] = (0.0, 0.0)  # each DOT stamped on arrival, late by a constant in this range
     imu_latency_jitter_ms: float = 0.0  # ... plus |normal| of this std per sample
     body_scale: float | None = None  # the performer's size, times the contract skeleton's (None: random 0.9-1.1)
+    facing_deg: float = 0.0  # the performer calibrates facing the LiDAR turned by this (counter-clockwise)
     imu_noise: bool = True
 
     def __post_init__(self) -> None:
@@ -119,7 +120,7 @@ class CaptureSession:
         bearing = np.deg2rad(cfg.bearing_deg)
         centre = cfg.distance_m * np.array([np.cos(bearing), np.sin(bearing), 0.0])
         self.motion = make_motion(cfg.scenario, cfg.seconds, cfg.seed, centre, cfg.lidar_height_m, cfg.area_radius_m,
-                                  cfg.body_scale)
+                                  cfg.body_scale, facing_deg=cfg.facing_deg)
         self.girth = float(rng.uniform(0.9, 1.15))
         self.body = BodyModel(self.motion.skeleton, girth=self.girth)
         areas = [(centre, cfg.area_radius_m)]

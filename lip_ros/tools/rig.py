@@ -25,7 +25,7 @@ def _make_bag(args: argparse.Namespace) -> int:
     config = CaptureConfig(scenario=args.scenario, seconds=args.seconds, seed=args.seed, distance_m=args.distance,
                            bearing_deg=args.bearing, sensor=args.sensor, columns=args.columns,
                            lidar_height_m=args.lidar_height, lidar_pitch_deg=args.lidar_pitch,
-                           lidar_roll_deg=args.lidar_roll, body_scale=args.body_scale,
+                           lidar_roll_deg=args.lidar_roll, body_scale=args.body_scale, facing_deg=args.facing,
                            imu_heading_spread_deg=args.imu_heading_spread, imu_latency_ms=tuple(args.imu_latency),
                            imu_latency_jitter_ms=args.imu_latency_jitter,
                            azimuth_window_deg=window, column0_azimuth_deg=args.column0_azimuth,
@@ -70,6 +70,8 @@ def parser() -> argparse.ArgumentParser:
                    help="LiDAR tilt about its x axis (positive: +y looks up)")
     m.add_argument("--body-scale", type=float, default=CaptureConfig.body_scale, metavar="S",
                    help="the performer's size times the contract skeleton's, about 1.72 m (default: random 0.9-1.1)")
+    m.add_argument("--facing", type=float, default=CaptureConfig.facing_deg, metavar="DEG",
+                   help="the performer calibrates facing the LiDAR turned by DEG (counter-clockwise from above)")
     m.add_argument("--imu-heading-spread", type=float, default=CaptureConfig.imu_heading_spread_deg, metavar="DEG",
                    help="each DOT's own inertial heading within +-DEG of the rig's (default 0: reset together)")
     m.add_argument("--imu-latency", type=float, nargs=2, default=CaptureConfig.imu_latency_ms, metavar=("LO", "HI"),

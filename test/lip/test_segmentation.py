@@ -196,7 +196,8 @@ def test_point_cloud_message_gives_the_same_result():
 #: 0.9-1.1x the contract skeleton) does not cover, as CaptureConfig changes: ouster-ros's os_lidar (column 0 along +x)
 #: with the performer straight ahead, where the sweep starts and ends (the seam), and to the side; a mounting yaw; the
 #: sub-column azimuth differences between the rows that a destaggered Ouster cloud keeps; an OS0-128 (90 deg field of
-#: view), an OS2-128 (22.5 deg) and an OS1-64; small and tall performers; a raised, tilted tripod.
+#: view), an OS2-128 (22.5 deg) and an OS1-64; small and tall performers, also turned 45 deg from facing the sensor
+#: while they calibrate; a raised, tilted tripod.
 SENSOR_VARIANTS = {
     "os_lidar, ahead (seam)": {"column0_azimuth_deg": 0.0},
     "os_lidar, side": {"column0_azimuth_deg": 0.0, "bearing_deg": 120.0},
@@ -207,6 +208,9 @@ SENSOR_VARIANTS = {
     "os1-64": {"sensor": "os1-64", "rate_hz": 10.0, "column0_azimuth_deg": 0.0, "bearing_deg": 60.0},
     "performer 1.45 m": {"body_scale": 0.84},
     "performer 2.0 m": {"body_scale": 1.16},
+    "performer 1.45 m turned 45 deg": {"body_scale": 0.84, "facing_deg": 45.0},
+    "performer 1.45 m turned -45 deg": {"body_scale": 0.84, "facing_deg": -45.0},
+    "performer 2.0 m turned -45 deg": {"body_scale": 1.16, "facing_deg": -45.0},
     "tripod at 2.5 m, pitched 8, rolled -3": {"lidar_height_m": 2.5, "lidar_pitch_deg": 8.0, "lidar_roll_deg": -3.0},
 }
 

@@ -25,7 +25,10 @@ How (all vectorised over the range image, no per-point Python loops):
      human-sized cluster that stays put (within ``still_m``) and, while it
      does, spreads its arms: its outline across the line of sight grows on both
      sides, by ``t_pose_side_m`` each, to a width of at least
-     ``t_pose_width_m`` (A-pose to T-pose). Static clutter never changes shape
+     ``t_pose_width_m`` (A-pose to T-pose). The thresholds hold for performers
+     of 1.45-2.0 m turned up to 45 deg from facing the sensor (the outline
+     across the line of sight shrinks with the cosine of the turn; the far arm
+     grows less than the near one). Static clutter never changes shape
      (when someone passes in front of it, it only ever regains one side),
      bystanders walk. With ``expected_xy`` only clusters within
      ``expected_radius_m`` of it count.
@@ -105,8 +108,8 @@ class SegmentationConfig:
     resume_xy: tuple[float, float] | None = None  # where the performer was last seen (resuming after a restart)
     resume_radius_m: float = 3.0
     still_m: float = 0.3  # standing still: staying within this of where it stopped
-    t_pose_width_m: float = 1.3  # widest outline (arms out) ...
-    t_pose_side_m: float = 0.2  # ... grown on the left and on the right by this much since the narrowest
+    t_pose_width_m: float = 0.9  # widest outline (arms out) ...
+    t_pose_side_m: float = 0.12  # ... grown on the left and on the right by this much since the narrowest
     # tracking
     min_track_points: int = 3  # a cluster smaller than this is noise
     gate_m: float = 0.6  # association radius around the prediction, ...

@@ -277,13 +277,15 @@ def make_motion(
     body_scale: float | None = None,
     calibration: bool = True,
     skeleton: Skeleton | None = None,
+    facing_deg: float = 0.0,
 ) -> PerformerMotion:
     """A performer's motion: calibration (optional) then ``scenario`` for ``duration_s`` seconds in all.
 
     ``centre`` (3,) (or (2,)) is the middle of the capture area in L (its z is
     ignored: the performer stands on the ground at z = -lidar_height);
     ``body_scale`` multiplies the contract skeleton (random in [0.9, 1.1] if
-    None). Same arguments, same motion.
+    None); the performer starts (and calibrates) facing the LiDAR turned by
+    ``facing_deg`` (counter-clockwise seen from above). Same arguments, same motion.
     """
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; choose from {SCENARIOS}")
@@ -295,7 +297,7 @@ def make_motion(
     area = Area(centre_xy, float(area_radius))
     if area.radius < 0.8 * scale:
         raise ValueError("area_radius is too small for a performer")
-    anchor = Anchor(centre_xy, float(np.arctan2(-centre_xy[1], -centre_xy[0])))  # facing the LiDAR
+    anchor = Anchor(centre_xy, float(np.arctan2(-centre_xy[1], -centre_xy[0]) + np.radians(facing_deg)))
     plan = _calibration(rig, seed, anchor) if calibration else []
     budget = duration_s - sum(p.duration for _, p in plan)
     if budget < MIN_DURATION[scenario]:
