@@ -9,7 +9,9 @@ in azimuth; an OS0 spreads its beams over 90 degrees of elevation, an OS1 over
 :func:`fit_scan_layout` finds, from the valid points of one frame, the sweep
 direction, the azimuth of column 0, each row's azimuth offset and each row's
 elevation, and :class:`ScanLayout` answers which columns can see a place and
-how far apart neighbouring rows look.
+how far apart neighbouring rows look. A staggered cloud (each row as its beam
+saw it, up to several degrees apart in azimuth) has rows whole columns apart:
+:attr:`ScanLayout.row_shift` and :func:`destagger` line them up.
 
 Model: the ray of row i, column j looks at azimuth
 ``column0 + row_offset[i] + direction * 2 pi j / W`` (radians, about the
@@ -26,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ScanLayout", "fit_scan_layout", "MIN_AGREEMENT"]
+__all__ = ["ScanLayout", "fit_scan_layout", "destagger", "MIN_AGREEMENT"]
 
 #: Mean resultant length the residual azimuths must reach for a fit (1: every point agrees exactly; noise and
 #: row offsets of a fraction of a degree leave > 0.99; the wrong sweep direction gives about 0).
@@ -57,6 +59,12 @@ class ScanLayout:
         steps = np.abs(np.diff(self.row_elevation_rad))
         return float(np.median(steps[np.isfinite(steps)]))
 
+    @property
+    def row_shift(self) -> np.ndarray:
+        """(H,) int: the whole columns each row is ahead of the mean, the shift that destaggers it
+        (:func:`destagger`); all zero for a destaggered cloud, whose rows look less than half a column apart."""
+        return np.rint(self.direction * self.row_offset_rad * self.width / (2.0 * np.pi)).astype(np.int64)
+
     def column(self, azimuth: float) -> float:
         """The fractional column in [0, W) whose rays, averaged over the rows, look at ``azimuth`` (rad)."""
         return float(self.direction * _wrap(azimuth - self.column0_rad) * self.width / (2.0 * np.pi)) % self.width
@@ -82,6 +90,14 @@ class ScanLayout:
                 f"rows {np.degrees(np.ptp(self.row_offset_rad)):.2f} deg apart in azimuth, elevations "
                 f"{elevation.max():+.1f} .. {elevation.min():+.1f} deg, {np.degrees(self.row_spacing_rad):.2f} deg "
                 f"between rows")
+
+
+def destagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """The (H, W) ``image`` with row i rolled by ``shift[i]`` columns (``new[i, j] = image[i, j - shift[i]]``), as
+    Ouster's destaggering does with the sensor's pixel shifts; ``-shift`` undoes it."""
+    height, width = image.shape[:2]
+    cols = (np.arange(width)[None, :] - np.asarray(shift)[:, None]) % width
+    return image[np.arange(height)[:, None], cols]
 
 
 def fit_scan_layout(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> ScanLayout | None:

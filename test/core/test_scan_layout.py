@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lip_ros.core.scan_layout import fit_scan_layout
+from lip_ros.core.scan_layout import destagger, fit_scan_layout
 from lip_ros.rig.lidar import OusterModel
 
 
@@ -80,3 +80,23 @@ def test_rows_elevations_and_spacing_of_each_model(model, fov_deg):
     np.testing.assert_allclose(fit.row_elevation_rad, lidar.elevation, atol=1e-6)
     assert np.degrees(fit.row_spacing_rad) == pytest.approx(fov_deg / (lidar.beams - 1), rel=1e-4)
     assert "between rows" in fit.describe()
+
+
+@pytest.mark.parametrize("direction", [-1, 1])
+def test_a_staggered_cloud_is_lined_up_by_its_row_shifts(direction):
+    """Rows degrees apart in azimuth (a staggered Ouster cloud): the fit gives each row's shift in whole columns, and
+    destaggering by it leaves the rows less than half a column apart, as a destaggered cloud; -shift undoes it."""
+    beams = (4.2, 1.4, -1.4, -4.2)
+    lidar = OusterModel.os1_64(columns=1024, beam_azimuth_deg=beams)
+    x, y, z = _cloud(lidar, np.random.default_rng(3))
+    y = y * -direction  # direction +1: mirrored, the sweep counter-clockwise
+    fit = fit_scan_layout(x, y, z)
+    assert fit.direction == direction
+    column = 2 * np.pi / 1024
+    np.testing.assert_array_equal(fit.row_shift, np.rint(fit.direction * fit.row_offset_rad / column))
+    assert np.abs(fit.row_shift).max() == 12  # 4.2 deg from the rows' mean of 0
+    lined = fit_scan_layout(*(destagger(a, fit.row_shift) for a in (x, y, z)))
+    assert np.abs(lined.row_offset_rad).max() < 0.5 * column and not lined.row_shift.any()
+    image = np.arange(64 * 1024).reshape(64, 1024)
+    np.testing.assert_array_equal(destagger(destagger(image, fit.row_shift), -fit.row_shift), image)
+    assert destagger(image, fit.row_shift)[0, 5] == image[0, (5 - fit.row_shift[0]) % 1024]

@@ -195,7 +195,8 @@ def test_point_cloud_message_gives_the_same_result():
 #: Sensors, conventions and set-ups the rig's own default (an OS1-128, column 0 along -x, level at 1.2 m, performers
 #: 0.9-1.1x the contract skeleton) does not cover, as CaptureConfig changes: ouster-ros's os_lidar (column 0 along +x)
 #: with the performer straight ahead, where the sweep starts and ends (the seam), and to the side; a mounting yaw; the
-#: sub-column azimuth differences between the rows that a destaggered Ouster cloud keeps; an OS0-128 (90 deg field of
+#: sub-column azimuth differences between the rows that a destaggered Ouster cloud keeps; a staggered cloud (the
+#: rows as the beams saw them, degrees apart: lined up from the fitted layout); an OS0-128 (90 deg field of
 #: view), an OS2-128 (22.5 deg) and an OS1-64; small and tall performers, also turned 45 deg from facing the sensor
 #: while they calibrate; a raised, tilted tripod.
 SENSOR_VARIANTS = {
@@ -203,6 +204,7 @@ SENSOR_VARIANTS = {
     "os_lidar, side": {"column0_azimuth_deg": 0.0, "bearing_deg": 120.0},
     "mounting yaw 37": {"column0_azimuth_deg": 37.0, "bearing_deg": -60.0},
     "destagger residual": {"beam_azimuth_deg": (0.15, -0.05, 0.1, -0.15), "bearing_deg": 30.0},
+    "staggered": {"beam_azimuth_deg": (4.2, 1.4, -1.4, -4.2), "bearing_deg": -30.0},
     "os0-128": {"sensor": "os0-128"},
     "os2-128": {"sensor": "os2-128", "bearing_deg": -30.0},
     "os1-64": {"sensor": "os1-64", "rate_hz": 10.0, "column0_azimuth_deg": 0.0, "bearing_deg": 60.0},
@@ -236,7 +238,10 @@ def test_any_sensor_model_convention_mounting_and_performer_size(name):
     true = np.degrees(lidar.azimuth[0] + lidar.beam_offset)  # where column 0 of each row looks
     seen = np.isfinite(layout.row_elevation_rad)
     assert seen.sum() >= lidar.beams // 2  # rows with returns (the highest look at the sky)
-    fitted = np.degrees(layout.column0_rad + layout.row_offset_rad)
+    shift = 0 if segmenter.row_shift is None else segmenter.row_shift  # a staggered cloud's rows, lined up
+    assert (segmenter.row_shift is not None) == (name == "staggered")
+    lined_up = layout.direction * 2 * np.pi * shift / layout.width
+    fitted = np.degrees(layout.column0_rad + layout.row_offset_rad + lined_up)
     np.testing.assert_allclose(((fitted - true + 180.0) % 360.0 - 180.0)[seen], 0.0, atol=0.05)
     np.testing.assert_allclose(layout.row_elevation_rad[seen], lidar.elevation[seen], atol=np.radians(0.05))
     precision, recall = run.mean_scores()

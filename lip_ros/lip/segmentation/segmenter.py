@@ -58,12 +58,12 @@ How (all vectorised over the range image, no per-point Python loops):
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from lip_ros.core.frames import level_rotation
-from lip_ros.core.scan_layout import ScanLayout, fit_scan_layout
+from lip_ros.core.scan_layout import ScanLayout, destagger, fit_scan_layout
 from lip_ros.lip.segmentation.clusters import Clusters, describe_clusters, link_components
 from lip_ros.lip.segmentation.scene import BackgroundModel, GroundPlane, fit_ground_plane
 from lip_ros.lip.segmentation.tracking import Track, associate
@@ -219,6 +219,7 @@ class PerformerSegmenter:
         )
         self.background: BackgroundModel | None = None
         self.layout: ScanLayout | None = None  # where the rows and columns look, fitted to the first frame
+        self._row_shift: np.ndarray | None = None  # a staggered cloud's rows' shifts (ScanLayout.row_shift)
         self.performer: Track | None = None
         self._others: list[Track] = []
         self._last_stamp_ns: int | None = None
@@ -228,6 +229,22 @@ class PerformerSegmenter:
         """R_L_P (3, 3): the level frame whose z is the fitted ground's normal (gravity-up; see
         :func:`lip_ros.core.frames.level_rotation`), None before the ground is known."""
         return None if self.ground is None else level_rotation(self.ground.normal)
+
+    @property
+    def row_shift(self) -> np.ndarray | None:
+        """(H,) columns each row of a staggered cloud is rolled by to line up (None: the cloud is destaggered);
+        :attr:`layout` is then the lined-up cloud's."""
+        return self._row_shift
+
+    @property
+    def layout_description(self) -> str:
+        """One line on the cloud's scan layout (:meth:`ScanLayout.describe`), and whether it was staggered."""
+        if self.layout is None:
+            return "not derived yet"
+        if self._row_shift is None:
+            return self.layout.describe()
+        return (f"staggered: rows lined up by shifts of up to {np.abs(self._row_shift).max()} columns; destaggered, "
+                + self.layout.describe())
 
     @property
     def locked(self) -> bool:
@@ -245,6 +262,31 @@ class PerformerSegmenter:
             return self._empty(SegmentationStatus.MALFORMED, problem, stamp, shape)
         if points.size == 0:
             return self._empty(SegmentationStatus.EMPTY_FRAME, f"frame of shape {shape} has no points", stamp, shape)
+        if self.layout is None:
+            self._fit_layout(points)
+        if self._row_shift is not None:  # a staggered cloud: its rows lined up, and the result put back
+            return self._restaggered(self._segment(destagger(points, self._row_shift), stamp, shape))
+        return self._segment(points, stamp, shape)
+
+    def _fit_layout(self, points: np.ndarray) -> None:
+        """Where the rows and columns look, and (a staggered cloud) how far each row must roll to line up."""
+        self.layout = fit_scan_layout(points["x"], points["y"], points["z"])
+        if self.layout is not None and self.layout.row_shift.any():
+            self._row_shift = self.layout.row_shift
+            self.layout = fit_scan_layout(*(destagger(points[f], self._row_shift) for f in "xyz"))
+
+    def _restaggered(self, result: SegmentationResult) -> SegmentationResult:
+        """A result on the destaggered cloud in the input's pixel order (mask, and the points in its order)."""
+        if not result.mask.any():
+            return replace(result, mask=destagger(result.mask, -self._row_shift))
+        height, width = result.mask.shape
+        rows, cols = np.nonzero(result.mask)
+        order = np.argsort(rows * width + (cols - self._row_shift[rows]) % width)
+        return replace(result, mask=destagger(result.mask, -self._row_shift), points=result.points[order],
+                       t_ns=result.t_ns[order])
+
+    def _segment(self, points: np.ndarray, stamp: int, shape: tuple[int, ...]) -> SegmentationResult:
+        """Segment a well-formed, destaggered frame."""
         frame = self._read(points)
         if not frame.range_m.any():
             return self._empty(SegmentationStatus.EMPTY_FRAME, "no returns in the frame", stamp, shape)
@@ -252,8 +294,6 @@ class PerformerSegmenter:
             cfg = self.config
             self.background = BackgroundModel(shape, cfg.margin_m, cfg.margin_per_m, cfg.confirm_frames,
                                               cfg.absorb_frames)
-        if self.layout is None:
-            self.layout = fit_scan_layout(points["x"], points["y"], points["z"])
         if self.ground is None:
             self.ground = self._fit_ground(frame)
         if self.ground is None:

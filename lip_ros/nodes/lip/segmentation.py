@@ -137,10 +137,10 @@ class SegmentationNode(GraphNode):
     def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
         """Level, message and values of the frames status: the last frame's segmentation state."""
         level = DiagnosticLevel.OK if self._last_status == SegmentationStatus.OK.value else DiagnosticLevel.WARN
-        layout, ground = self._segmenter.layout, self._segmenter.ground
+        ground = self._segmenter.ground
         return level, self._last_status, {"performer clouds published": self._latency.count,
                                           "performer locked": self._segmenter.locked,
-                                          "scan layout": "not derived yet" if layout is None else layout.describe(),
+                                          "scan layout": self._segmenter.layout_description,
                                           "ground": "not found yet" if ground is None else (
                                               f"{ground.offset:.2f} m below the LiDAR; "
                                               f"{describe_level(self._segmenter.level)}"),
