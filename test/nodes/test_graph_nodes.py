@@ -102,6 +102,7 @@ def test_calibration_state_is_latched_and_controlled_by_services(ros_node, saved
     ("segmentation_node", ["-p", "lidar_rate_hz:=fast"], "lidar_rate_hz"),
     ("calibration_node", ["-p", "imu_topics:=[/a, /b]"], "imu_topics needs 4 topics"),
     ("calibration_node", ["-p", "dot_latency_s:=[0.03, 0.04]"], "dot_latency_s must be a list of 0 or 4 finite"),
+    ("pose_node", ["-p", "hri_body_id:=1st performer"], "hri_body_id must be letters, digits and underscores"),
     ("calibration_node", ["-p", "dot_latency_s:=[0.03, 0.04, -0.01, 0.02]"], "dot_latency_s must not be negative"),
     ("segmentation_node", ["-p", "lock_rule:=wave"], "lock_rule must be one of t_pose, still"),
     ("segmentation_node", ["-p", "lock_rule:=still"], "lock_rule 'still' needs expected_xy"),
@@ -135,13 +136,16 @@ def test_a_restarted_graph_resumes_mid_capture(ros_node, tmp_path):
     """Kill fusion_node mid-capture and start it again: it resumes with the saved calibration and performer
     position (the A/T-pose is only at the start of the bag, so without them no pose could follow)."""
     files = {"calibration_file": tmp_path / "calibration.yaml", "performer_file": tmp_path / "performer.yaml"}
-    args = ["-p", "use_sim_time:=true", *(a for k, v in files.items() for a in ("-p", f"{k}:={v}"))]
+    args = ["-p", "use_sim_time:=true", "-p", "hri_body_id:=performer1",
+            *(a for k, v in files.items() for a in ("-p", f"{k}:={v}"))]
     poses: list[tuple[object, int]] = []
     joint_states: list[JointState] = []
+    hri_states: list[JointState] = []  # the ROS4HRI view (REP-155)
     run = [0]
     ros_node.create_subscription(PoseStamped, "/lip/root_pose",
                                  lambda m: poses.append((msg_to_pose_stamped(m), run[0])), RELIABLE)
     ros_node.create_subscription(JointState, "/lip/joint_states", joint_states.append, RELIABLE)
+    ros_node.create_subscription(JointState, "/humans/bodies/performer1/joint_states", hri_states.append, RELIABLE)
     graph = _start("fusion_node", *args)
     inputs = ["/ouster/points", *(f"/dot/{n}/imu" for n in ("left_wrist", "right_wrist", "left_ankle", "right_ankle"))]
     player = subprocess.Popen([console_script("lip_bag_play"), str(DEMO_BAG), "--clock", "--rate", "0.5",
@@ -169,6 +173,10 @@ def test_a_restarted_graph_resumes_mid_capture(ros_node, tmp_path):
     urdf_joints = [j.get("name") for j in ET.parse(params_path(URDF_FILE)).getroot().iter("joint")
                    if j.get("type") == "revolute"]
     assert len(joint_states) >= len(poses) - 5 and all(list(js.name) == urdf_joints for js in joint_states)
+    by_stamp = {(m.header.stamp.sec, m.header.stamp.nanosec): list(m.position) for m in joint_states}
+    hri = {(m.header.stamp.sec, m.header.stamp.nanosec): list(m.position) for m in hri_states}
+    assert len(hri) >= len(by_stamp) - 1  # the kill may fall between the two publishes
+    assert all(by_stamp[k] == v for k, v in hri.items())
     after = [p for p, r in poses if r == 1]
     assert len(after) >= 15, (len(poses), len(after), out[-3000:])
     truth = {p.stamp_ns: p.position for p in map(msg_to_pose_stamped,

@@ -8,7 +8,10 @@ LIP network (:class:`lip_ros.lip.stages.PoseStage`) and publishes
 was scanned. Where tf2_msgs is installed (a full ROS install), the pelvis is
 also broadcast on /tf (``frame_id`` -> ``tf_child_frame``, the URDF's root
 link) for robot_state_publisher and RViz; without it the node says so once
-and goes on.
+and goes on. With ``hri_body_id`` set, the ROS4HRI view (REP-155) too: the
+same joint states on ``/humans/bodies/<id>/joint_states`` and the pelvis on
+/tf as ``body_<id>`` (the ``/humans/bodies/tracked`` list needs hri_msgs,
+which is not installed here: not published).
 
 The translation corrector stays in this node with the pose network: it runs
 in the same forward pass, on the network's raw (unnormalised) 6D rotations
@@ -17,6 +20,7 @@ and refined joint map, which no standard message carries exactly.
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -56,6 +60,12 @@ from lip_ros.outputs import pose_messages
 
 __all__ = ["PoseNode", "main"]
 
+
+def _ros_name(value: Any) -> str | None:
+    """Check: '' or a name usable in a topic and a frame (letters, digits, underscores; not starting with a digit)."""
+    ok = value == "" or (isinstance(value, str) and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", value) is not None)
+    return None if ok else f"must be letters, digits and underscores, not starting with a digit; got {value!r}"
+
 _POINTS = "points"
 
 
@@ -71,6 +81,8 @@ class PoseNode(GraphNode):
         "frame_id": Param("frame of the outputs ('' = the LiDAR cloud's frame)"),
         "publish_tf": Param("broadcast the pelvis on /tf (needs tf2_msgs)"),
         "tf_child_frame": Param("child frame of the /tf pelvis transform (the URDF's root link)"),
+        "hri_body_id": Param("ROS4HRI (REP-155) body id: also /humans/bodies/<id>/joint_states and the pelvis on /tf "
+                             "as body_<id> ('' = off)", _ros_name),
         "ground_topic": GROUND_PARAM,
         "max_pose_gap_s": Param("after this long without a pose the network starts a new sequence", positive),
         "join_max_stamps": Param("stamps that may wait for the rest of their inputs", positive),
@@ -94,7 +106,11 @@ class PoseNode(GraphNode):
                                             (LIP_TOPICS.root_pose, "geometry_msgs/msg/PoseStamped"),
                                             (LIP_TOPICS.joint_poses, "geometry_msgs/msg/PoseArray"),
                                             (LIP_TOPICS.skeleton, "visualization_msgs/msg/MarkerArray"))}
-        self._tf_pub = self._tf_publisher() if p["publish_tf"] else None
+        body = p["hri_body_id"]  # ROS4HRI: the joint states again under the body's id, its TF root body_<id>
+        self._hri_frame = f"body_{body}" if body else ""
+        self._hri_pub = self.create_publisher(rclpy_message_class("sensor_msgs/msg/JointState"),
+                                              f"/humans/bodies/{body}/joint_states", RELIABLE) if body else None
+        self._tf_pub = self._tf_publisher() if p["publish_tf"] or body else None
         subscribe_ground(self, p["ground_topic"], self._on_ground)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
                        lambda msg: self._on_input(_POINTS, msg), BETWEEN_NODES)
@@ -142,13 +158,19 @@ class PoseNode(GraphNode):
         acc = np.stack([items[n][1] for n in IMU_NAMES])
         pose, _, _ = self.stage.estimate(stamp_ns, points, rot, acc)
         frame_id = self.params["frame_id"] or cloud_frame
-        for topic, (_, msg) in pose_messages(self.backend, LIP_TOPICS, self.stage.skeleton, stamp_ns, frame_id,
-                                             pose.local_rot, pose.glob_rot, pose.joint_pos).items():
+        messages = pose_messages(self.backend, LIP_TOPICS, self.stage.skeleton, stamp_ns, frame_id, pose.local_rot,
+                                 pose.glob_rot, pose.joint_pos)
+        for topic, (_, msg) in messages.items():
             self._out[topic].publish(msg)
+        if self._hri_pub is not None:
+            self._hri_pub.publish(messages[LIP_TOPICS.joint_states][1])
         if self._tf_pub is not None:
-            root = transform_stamped_to_msg(self.backend, stamp_ns, frame_id, self.params["tf_child_frame"],
-                                            pose.root_pos, matrix_to_quat(pose.glob_rot[0]))
-            self._tf_pub.publish(tf_message(self.backend, [root]))
+            children = [self.params["tf_child_frame"]] if self.params["publish_tf"] else []
+            children += [self._hri_frame] if self._hri_frame else []
+            quat = matrix_to_quat(pose.glob_rot[0])
+            self._tf_pub.publish(tf_message(self.backend, [
+                transform_stamped_to_msg(self.backend, stamp_ns, frame_id, child, pose.root_pos, quat)
+                for child in children]))
         self.count_frame(Outcome.POSE.value)
         now = time.monotonic()
         self._latency.add(now - start)
