@@ -562,10 +562,12 @@ class CalibrationDetector:
     gait: GaitHeadingConfig = field(default_factory=GaitHeadingConfig)
     _samples: dict[str, deque] = field(default_factory=dict, repr=False)
     _clouds: deque = field(default_factory=deque, repr=False)
+    _track: deque = field(default_factory=deque, repr=False)  # (stamp, median xy) of each non-empty cloud
     _poses: Calibration | None = field(default=None, repr=False)  # solved from the poses, ankle headings pending
 
     def __post_init__(self) -> None:
         self._clouds = deque(self._clouds, maxlen=int(self.horizon_s * MAX_FRAME_RATE_HZ))
+        self._track = deque(self._track, maxlen=self._clouds.maxlen)
 
     @property
     def max_buffered(self) -> int:
@@ -588,8 +590,12 @@ class CalibrationDetector:
         """The performer's points (N, 3) in L of one frame, at the frame's effective stamp; ignored once calibrated."""
         if self.calibration is not None:
             return
-        self._clouds.append((int(stamp_ns), np.asarray(points, dtype=np.float64).reshape(-1, 3)))
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        self._clouds.append((int(stamp_ns), points))
         self._trim(self._clouds, int(stamp_ns))
+        if len(points):
+            self._track.append((int(stamp_ns), np.median(points[:, :2], axis=0)))
+            self._trim(self._track, int(stamp_ns))
 
     def update(self) -> Calibration | None:
         """Try to calibrate on the data so far; the calibration once it succeeded, else None (see ``status``)."""
@@ -618,7 +624,7 @@ class CalibrationDetector:
     def _walk_headings(self, streams: Mapping[str, _Samples]) -> bool:
         """Solve the pending sensors' headings from the walking after the T-pose; whether none is left pending."""
         after = self._poses.windows["t_pose"][1]
-        track = [(t, np.median(p[:, :2], axis=0)) for t, p in self._clouds if t > after and len(p)]
+        track = [(t, xy) for t, xy in self._track if t > after]
         missing = []
         for name in self._poses.heading_pending:
             x = ImuSeries.clean(streams[name])[0] if name in streams else None
