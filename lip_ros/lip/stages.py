@@ -279,7 +279,7 @@ class ImuStage:
         return waiting.pose_stamp_ns is None or self.sync.ready(waiting.pose_stamp_ns, now_ns)
 
     def _try_calibrate(self, t_ns: int) -> None:
-        """Show the detector the IMU samples stamped up to ``t_ns`` and try to calibrate."""
+        """Show the detector the IMU samples measured up to ``t_ns`` (stamps less latencies) and try to calibrate."""
         later = deque(maxlen=self._calibration_samples.maxlen)
         for name, measured_ns, sample in self._calibration_samples:
             if measured_ns <= t_ns:
