@@ -88,7 +88,7 @@ class SyncConfig:
     settle_ns: int = 0  # ready() wants data this far past t (reordering in transport + a period)
     wait_ns: int = 200_000_000  # ready() stops waiting this long after t
     quat_norm_tolerance: float = 1e-3  # quaternions farther from unit norm are rejected
-    max_clock_gap_ns: int = 10_000_000_000  # a time this far from the newest sample is on another clock
+    max_clock_gap_ns: int = 10_000_000_000  # a time this far outside the buffered samples is on another clock
     #: per sensor, in the synchroniser's order: how much later than its measurement a sample is stamped (a driver
     #: that stamps on arrival); subtracted from every stamp on the way in. () = none
     latency_ns: tuple[int, ...] = ()
@@ -387,6 +387,11 @@ class ImuSynchronizer:
         """Stamp of the newest buffered sample of ``name``."""
         stamps = self._buffers[name].stamps
         return int(stamps[-1]) if stamps.size else None
+
+    def span_ns(self) -> tuple[int, int] | None:
+        """Stamps of the oldest and the newest buffered sample of any sensor (None if nothing is buffered)."""
+        spans = [(int(b.stamps[0]), int(b.stamps[-1])) for b in self._buffers.values() if b.stamps.size]
+        return (min(s[0] for s in spans), max(s[1] for s in spans)) if spans else None
 
     def ready(self, t_ns: int, now_ns: int) -> bool:
         """Whether to query ``t_ns`` now: all sensors have data past ``t + settle_ns``, or ``wait_ns`` passed."""

@@ -297,13 +297,17 @@ class ImuStage:
                 save_calibration(cal, self.calibration_file)
 
     def _clock_gap(self, t_ns: int) -> str | None:
-        """Why ``t_ns`` cannot be on the IMU data's clock (None if it can): too far from the newest sample."""
-        newest = self.data_time_ns
-        if newest is None or abs(t_ns - newest) <= self.sync.config.max_clock_gap_ns:
+        """Why ``t_ns`` cannot be on the IMU data's clock (None if it can): too far outside the buffered samples."""
+        span = self.sync.span_ns()
+        if span is None:
             return None
-        return (f"{CLOCKS_REASON}: the LiDAR frame is stamped {(t_ns - newest) * 1e-9:+.1f} s from the newest DOT "
-                "sample: the LiDAR and the DOTs stamp on different clocks (ouster-ros: timestamp_mode "
-                "TIME_FROM_ROS_TIME, or PTP on both), or every DOT has been silent that long")
+        gap = min(t_ns - span[0], 0) + max(t_ns - span[1], 0)  # 0 inside the span, signed outside it
+        if abs(gap) <= self.sync.config.max_clock_gap_ns:
+            return None
+        side = "newest" if gap > 0 else "oldest"
+        return (f"{CLOCKS_REASON}: the LiDAR frame is stamped {gap * 1e-9:+.1f} s from the {side} DOT sample: the "
+                "LiDAR and the DOTs stamp on different clocks (ouster-ros: timestamp_mode TIME_FROM_ROS_TIME, or PTP "
+                "on both), or every DOT has been silent that long")
 
     def _process(self, w: _Waiting) -> BoneFrame:
         if w.pose_stamp_ns is None:

@@ -96,8 +96,8 @@ class CalibrationNode(GraphNode):
         "max_imu_hold_s": Param("oldest a DOT sample may be when held for a frame it does not cover", positive),
         "imu_wait_s": Param("how long a frame waits for late DOT data after its pose time", positive),
         "max_pending_frames": Param("frames that may wait for DOT data; older ones are skipped", positive),
-        "max_clock_gap_s": Param("a frame stamped this far from the newest DOT sample is on another clock: skipped, "
-                                 "ERROR on /diagnostics", positive),
+        "max_clock_gap_s": Param("a frame stamped this far outside the buffered DOT samples is on another clock: "
+                                 "skipped, ERROR on /diagnostics", positive),
         "dot_latency_s": Param("per DOT, order as imu_topics: how much later than measured its driver stamps a sample "
                                "(on arrival over Bluetooth: tens of ms), taken off every stamp ([] = none)",
                                _latencies, any_type=True),
