@@ -332,6 +332,10 @@ class _Buffer:
             self.evicted = True
         return None
 
+    def shift(self, delta_ns: int) -> None:
+        """Move every stamp by ``delta_ns`` (the order stays)."""
+        self._stamps[self._start : self._end] += delta_ns
+
 
 class ImuSampleLike(Protocol):
     """One measurement, e.g. a ``lip_msgs_py.imu.ImuSample`` (NaN components are rejected)."""
@@ -374,6 +378,25 @@ class ImuSynchronizer:
     def measured_ns(self, name: str, stamp_ns: int) -> int:
         """When a sample of ``name`` stamped ``stamp_ns`` was measured: its stamp less the sensor's latency."""
         return stamp_ns - self._latency_ns[name]
+
+    def latency_ns(self, name: str) -> int:
+        """How much later than measured the samples of ``name`` are stamped (taken off on the way in)."""
+        return self._latency_ns[name]
+
+    def set_latency(self, name: str, latency_ns: int) -> None:
+        """Take ``latency_ns`` off the stamps of ``name`` from now on, and off those buffered (moved to match)."""
+        self._buffers[name].shift(self._latency_ns[name] - latency_ns)
+        self._latency_ns[name] = latency_ns
+
+    def orientations(self, name: str, stamp_ns: np.ndarray) -> np.ndarray:
+        """R_I_S (T, 4) of ``name`` interpolated at the measurement times of samples stamped ``stamp_ns`` (T,), NaN
+        where the buffer does not bracket them (nothing is held)."""
+        b = self._buffers[name]
+        t = np.asarray(stamp_ns, dtype=np.int64) - self._latency_ns[name]
+        values, status, _, _ = _interpolate(b.stamps, b.rows, t, self.config, b.evicted)
+        quat = values[:, _QUAT]
+        quat[np.array(status) != SensorStatus.OK] = np.nan
+        return quat
 
     def insert(self, name: str, stamp_ns: int, row: np.ndarray, code: int) -> str | None:
         """Buffer one sample of sensor ``name`` validated by :meth:`validate` at its measurement time

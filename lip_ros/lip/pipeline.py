@@ -34,6 +34,7 @@ import numpy as np
 from lip_ros.core.imu_sync import ImuSampleLike, SyncConfig, SyncResult
 from lip_ros.core.skeleton import Skeleton, load_skeleton
 from lip_ros.lip.calibration import Calibration, CalibrationConfig
+from lip_ros.lip.dot_latency import LatencyConfig
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.segmentation import PerformerSegmenter, SegmentationConfig, SegmentationResult, SegmentationStatus
 from lip_ros.lip.stages import MAX_PENDING_FRAMES, BoneFrame, ImuStage, LipPose, Outcome, PoseStage
@@ -50,6 +51,7 @@ class PipelineConfig:
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
     calibration_file: Path | None = None
     max_pending_frames: int = MAX_PENDING_FRAMES  # frames waiting for IMU data; older ones are skipped with a reason
+    latency: LatencyConfig = field(default_factory=LatencyConfig)  # the DOT latencies' online estimate
 
 
 @dataclass(frozen=True)
@@ -117,7 +119,7 @@ class LipPipeline:
         self.skeleton = skeleton or load_skeleton()
         self.segmenter = segmenter or PerformerSegmenter(self.config.segmentation)
         self.imu = ImuStage(self.config.sync, self.config.calibration, self.skeleton, calibration,
-                            self.config.calibration_file, self.config.max_pending_frames)
+                            self.config.calibration_file, self.config.max_pending_frames, self.config.latency)
         self.poser = PoseStage(model, self.skeleton)
         self.imu_rejections: Counter[tuple[str, str]] = Counter()  # (sensor, reason) -> count
         self._held: list[BoneFrame] = []  # processed frames waiting for the network (pose_batch > 1)

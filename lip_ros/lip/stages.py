@@ -43,6 +43,7 @@ from lip_ros.lip.calibration import (
     load_calibration,
     save_calibration,
 )
+from lip_ros.lip.dot_latency import LatencyConfig, LatencyEstimator
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.sensors import IMU_NAMES
 
@@ -124,9 +125,14 @@ class ImuStage:
         calibration: Calibration | None = None,
         calibration_file: Path | None = None,
         max_pending: int = MAX_PENDING_FRAMES,
+        latency: LatencyConfig | None = None,
     ) -> None:
         self.skeleton = skeleton or load_skeleton()
         self.sync = ImuSynchronizer(IMU_NAMES, sync or SyncConfig())
+        #: the DOT latencies' online estimate (None: the configured ones are kept), see :mod:`lip_ros.lip.dot_latency`
+        latency = latency or LatencyConfig()
+        self.latency = LatencyEstimator(config=latency) if latency.enabled else None
+        self._bone_axis_in_b = {n: self._child_direction(self.skeleton.lip_imus[n]["bone_joint"]) for n in IMU_NAMES}
         self._calibration_config = calibration_config or CalibrationConfig()
         self.calibration_file = calibration_file
         self.max_pending = max_pending
@@ -146,10 +152,30 @@ class ImuStage:
         if calibration is None:
             self.start_calibration()
 
+    def _child_direction(self, joint: str) -> np.ndarray:
+        """The unit direction of ``joint``'s bone (to its child) in the bone's own frame."""
+        offset = self.skeleton.offsets[self.skeleton.children(self.skeleton.index(joint))[0]]
+        return offset / np.linalg.norm(offset)
+
     @property
     def calibrated(self) -> bool:
         """Whether measurements can be turned into bone orientations in L."""
         return self.calibration is not None
+
+    @property
+    def latency_status(self) -> str:
+        """Each DOT's latency taken off its stamps (ms), and whether it was estimated."""
+        est = self.latency
+
+        def one(name: str) -> str:
+            ms = f"{name} {self.sync.latency_ns(name) * 1e-6:.0f}"
+            if est is None:
+                return ms
+            if est.estimate_ns[name] is not None:
+                return f"{ms} (estimated)"
+            return f"{ms} (not estimated: {est.frames[name]} of {est.config.min_frames} frames seen moving)"
+
+        return ", ".join(map(one, IMU_NAMES))
 
     @property
     def calibrating(self) -> bool:
@@ -320,6 +346,8 @@ class ImuStage:
                              seconds=time.perf_counter() - start, tag=w.tag)
         if self._detector is not None:
             self._try_calibrate(t)
+        if self.latency is not None and w.points is not None:
+            self._estimate_latency(t, w.points if self.level is None else w.points @ self.level)
         if self.calibration is None:
             return BoneFrame(w.frame_stamp_ns, t, Outcome.CALIBRATING, self._detector.status, w.points,
                              seconds=time.perf_counter() - start, tag=w.tag)
@@ -333,6 +361,24 @@ class ImuStage:
             rot, acc = self.level @ rot, acc @ self.level.T
         return BoneFrame(w.frame_stamp_ns, t, Outcome.POSE, synced.reason, w.points, synced, rot, acc,
                          time.perf_counter() - start, w.tag)
+
+
+    def _estimate_latency(self, t_ns: int, points: np.ndarray) -> None:
+        """Once calibrated, score the frames up to ``t_ns`` (those seen while calibrating too, as far as the DOT
+        data is still buffered) and take each new latency estimate off its DOT's stamps; then observe this frame's
+        points (in P)."""
+        if self.calibration is not None:
+            for name, latency_ns in self.latency.update(t_ns, self._bone_axis).items():
+                self.sync.set_latency(name, latency_ns)
+        self.latency.observe(t_ns, points)
+
+    def _bone_axis(self, name: str, stamps_ns: np.ndarray) -> np.ndarray:
+        """The direction (T, 3) in P of ``name``'s bone at the DOT stamps ``stamps_ns``; all NaN unless all covered."""
+        quat = self.sync.orientations(name, stamps_ns)
+        if not np.isfinite(quat).all():
+            return np.full((len(quat), 3), np.nan)
+        rot, _ = self.calibration.apply(name, quat, np.zeros((len(quat), 3)))
+        return rot @ self._bone_axis_in_b[name]
 
 
 class PoseStage:

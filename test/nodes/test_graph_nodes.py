@@ -275,4 +275,5 @@ def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_no
     assert statuses["calibration_node: frames"].values["DOT heading reset"] == "done: 4 DOTs reset"
     assert statuses["calibration_node: frames"].values["DOT headings"] == "unknown"  # nothing calibrated
     assert (statuses["calibration_node: frames"].values["DOT latency taken off (ms)"]
-            == "left_wrist 30, right_wrist 40, left_ankle 50, right_ankle 61")
+            == ", ".join(f"{n} {ms} (not estimated: 0 of 60 frames seen moving)"
+                         for n, ms in zip(IMU_NAMES, (30, 40, 50, 61))))

@@ -3,11 +3,14 @@ defaults and topic names, and the checks of user parameter files."""
 
 from __future__ import annotations
 
+import inspect
+
 import pytest
 import yaml
 
 from lip_ros.core.imu_sync import SyncConfig
 from lip_ros.core.skeleton import load_skeleton
+from lip_ros.lip.dot_latency import LatencyConfig
 from lip_ros.lip.pipeline import PipelineConfig
 from lip_ros.lip.segmentation import SegmentationConfig
 from lip_ros.lip.sensors import IMU_NAMES, IMU_TOPICS, LIDAR_TOPIC
@@ -53,6 +56,7 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults():
     assert round(cal["imu_wait_s"] * NS) == sync.wait_ns
     assert round(cal["max_clock_gap_s"] * NS) == sync.max_clock_gap_ns
     assert tuple(cal["dot_latency_s"]) == sync.latency_ns == ()
+    assert cal["estimate_dot_latency"] == LatencyConfig().enabled == PipelineConfig().latency.enabled
     assert cal["max_pending_frames"] == MAX_PENDING_FRAMES == PipelineConfig().max_pending_frames
     assert round(pose["max_pose_gap_s"] * NS) == MAX_POSE_GAP_NS
     seg, segmentation = node_defaults(LIP_PARAMS_FILE, "segmentation_node"), SegmentationConfig()
@@ -61,8 +65,8 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults():
     assert seg["expected_radius_m"] == segmentation.expected_radius_m
     assert (tuple(seg["ground_plane"]) or None) == segmentation.ground_plane
     # the stages take those constants as their defaults
-    assert ImuStage.__init__.__defaults__[-1] == MAX_PENDING_FRAMES
-    assert PoseStage.__init__.__defaults__[-1] == MAX_POSE_GAP_NS
+    assert inspect.signature(ImuStage).parameters["max_pending"].default == MAX_PENDING_FRAMES
+    assert inspect.signature(PoseStage).parameters["max_gap_ns"].default == MAX_POSE_GAP_NS
 
 
 def test_shipped_topics_agree_with_lip_sensors_and_the_contract():

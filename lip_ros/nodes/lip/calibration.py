@@ -43,6 +43,7 @@ from lip_msgs_py import (
 from lip_ros.core.imu_sync import SyncConfig
 from lip_ros.core.rotations import matrix_to_quat
 from lip_ros.lip.calibration import CalibrationError
+from lip_ros.lip.dot_latency import LatencyConfig
 from lip_ros.lip.sensors import IMU_NAMES
 from lip_ros.lip.stages import CLOCKS_REASON, BoneFrame, ImuStage, Outcome
 from lip_ros.nodes.base import (
@@ -101,6 +102,8 @@ class CalibrationNode(GraphNode):
         "dot_latency_s": Param("per DOT, order as imu_topics: how much later than measured its driver stamps a sample "
                                "(on arrival over Bluetooth: tens of ms), taken off every stamp ([] = none)",
                                _latencies, any_type=True),
+        "estimate_dot_latency": Param("estimate each DOT's latency online from the limbs the LiDAR sees moving, and "
+                                      "take it off instead of dot_latency_s once found (docs/conventions.md)"),
     }
 
     def __init__(self, **kwargs: Any) -> None:
@@ -111,11 +114,12 @@ class CalibrationNode(GraphNode):
                           wait_ns=int(p["imu_wait_s"] * 1e9), max_clock_gap_ns=int(p["max_clock_gap_s"] * 1e9),
                           latency_ns=tuple(round(v * 1e9) for v in p["dot_latency_s"]))
         try:
-            self.stage = ImuStage(sync, calibration_file=file, max_pending=p["max_pending_frames"])
+            self.stage = ImuStage(sync, calibration_file=file, max_pending=p["max_pending_frames"],
+                                  latency=LatencyConfig(enabled=p["estimate_dot_latency"]))
         except (OSError, ValueError, KeyError, CalibrationError) as exc:
             raise ParameterError(f"cannot load calibration_file {file}: {exc}") from exc
         self._latency = LatencyWindow()
-        self._dot_latency = ", ".join(f"{n} {v * 1e3:g}" for n, v in zip(IMU_NAMES, p["dot_latency_s"])) or "none"
+        self._estimated: dict[str, int | None] = {}  # the latency estimates last logged
         self._bone_pubs = [self.create_publisher(Imu, topic, BETWEEN_NODES) for topic in p["bone_topics"]]
         self._state_pub = self.create_publisher(String, p["calibration_topic"], LATCHED)
         self._published_state: tuple[int, bool] | None = None
@@ -176,6 +180,14 @@ class CalibrationNode(GraphNode):
                     self.get_logger().error(f.reason, throttle_duration_sec=5.0)
         if frames:
             self._publish_state()
+            self._log_latency()
+
+    def _log_latency(self) -> None:
+        """Say when a DOT's latency estimate changed."""
+        if self.stage.latency is None or self.stage.latency.estimate_ns == self._estimated:
+            return
+        self._estimated = dict(self.stage.latency.estimate_ns)
+        self.get_logger().info(f"DOT latencies taken off (ms): {self.stage.latency_status}")
 
     def _publish_state(self) -> None:
         """The calibration state on the latched topic, when it changed."""
@@ -242,7 +254,7 @@ class CalibrationNode(GraphNode):
                                           "pending": self.stage.pending, "bones with a held DOT sample": self._held,
                                           "samples held for the calibration": self.stage.calibration_samples,
                                           "DOT heading reset": self._heading_reset,
-                                          "DOT latency taken off (ms)": self._dot_latency,
+                                          "DOT latency taken off (ms)": self.stage.latency_status,
                                           "DOT headings": "unknown" if self.stage.calibration is None
                                           else self.stage.calibration.headings,
                                           "last sync": self._last_sync, **self._latency.values("latency_ms")}

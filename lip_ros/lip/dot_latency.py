@@ -1,0 +1,211 @@
+"""Each DOT's latency to the LiDAR clock, estimated online from the limbs the LiDAR sees (ROS-free).
+
+A DOT driver that stamps samples on their arrival over Bluetooth stamps them
+tens of milliseconds late, each sensor differently. Once calibrated, a DOT
+gives the direction of its bone (shank or forearm) in the level frame P at any
+time; the LiDAR sees the same limb at the frame's pose time. The latency is
+the shift of the DOT's stamps that best lines the two up:
+
+* :class:`LimbFinder` finds, in each frame's performer points (in P), the
+  axes of the lower legs (points 7-22 % of the body's height above the floor)
+  and of the arms away from the trunk (42-66 % of the height, farther than
+  10 % of the height from the trunk's vertical axis): connected groups of
+  points, elongated, their principal direction. The floor and the height are
+  running medians of the performer's own lowest and highest points, so
+  neither the ground plane nor the performer's size need to be known.
+* :class:`LatencyEstimator` compares, for every observed frame and every
+  latency of a grid (:class:`LatencyConfig`), the DOT's bone direction at
+  the pose time plus that latency with the nearest limb axis seen (the two
+  legs or arms are not told apart), as a truncated squared angle. Costs
+  summed over a window of frames have their minimum at the latency; it is
+  taken when it is clear (a contrast against latencies 40 ms away, not at the
+  grid's edge), so a limb that does not move (arms still while walking,
+  standing still) leaves its DOT's latency as it was.
+
+Accuracy on the rig: docs/conventions.md ("DOT latency"); tests:
+``test/lip/test_dot_latency.py``.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+__all__ = ["LatencyConfig", "LimbFinder", "LatencyEstimator", "LIMB_SENSORS"]
+
+#: The limb each DOT lies on, as :class:`LimbFinder` names it.
+LIMB_SENSORS = {"left_wrist": "forearm", "right_wrist": "forearm", "left_ankle": "shank", "right_ankle": "shank"}
+
+
+@dataclass(frozen=True)
+class LatencyConfig:
+    """Where limbs are looked for, the latencies considered, and when an estimate is taken."""
+
+    enabled: bool = True
+    low_ns: int = -60_000_000  # latencies considered (a configured latency too large shows as negative)
+    high_ns: int = 200_000_000
+    step_ns: int = 2_000_000
+    window: int = 300  # frames whose costs are summed, per sensor (30 s at 10 Hz)
+    min_frames: int = 60  # frames observed before the first estimate
+    every: int = 25  # frames between two estimates
+    max_angle_deg: float = 15.0  # the angle between the DOT's bone and the nearest limb axis is truncated here
+    contrast_ns: int = 40_000_000  # the minimum must stand out against latencies this far on either side ...
+    min_contrast_deg2: float = 4.0  # ... by this much (mean truncated squared angle per frame)
+    shank_band: tuple[float, float] = (0.07, 0.22)  # heights of the lower legs above the floor / body height
+    forearm_band: tuple[float, float] = (0.42, 0.66)  # heights of the forearms (hanging to level)
+    trunk_band: tuple[float, float] = (0.55, 0.8)  # heights whose median point is the trunk's vertical axis
+    forearm_off_trunk: float = 0.1  # arm points are farther than this from the trunk's axis / body height
+    link_m: float = 0.06  # points closer than this are one limb
+    min_points: int = 6
+    min_length_m: float = 0.1  # a limb's points span at least this along its axis
+    min_elongation: float = 4.0  # first / second principal variance
+    history: int = 30  # frames of lowest and highest points for the floor and the body height
+
+    def __post_init__(self) -> None:
+        if not (self.low_ns < self.high_ns and self.step_ns > 0 and self.window >= self.min_frames >= 1
+                and self.every >= 1 and self.contrast_ns > 0 and self.history >= 1):
+            raise ValueError(f"invalid {self}")
+
+    @property
+    def grid_ns(self) -> np.ndarray:
+        """The latencies considered (G,), int64 nanoseconds."""
+        return np.arange(self.low_ns, self.high_ns + 1, self.step_ns, dtype=np.int64)
+
+
+class LimbFinder:
+    """The axes of the performer's lower legs and forearms in one frame's points (in P, z up)."""
+
+    def __init__(self, config: LatencyConfig | None = None) -> None:
+        self.config = config or LatencyConfig()
+        self._lowest: deque[float] = deque(maxlen=self.config.history)
+        self._highest: deque[float] = deque(maxlen=self.config.history)
+
+    def axes(self, points: np.ndarray) -> dict[str, np.ndarray]:
+        """Limb name ("shank", "forearm") -> (K, 3) unit axes found (K may be 0); points (N, 3) in P."""
+        c = self.config
+        points = np.asarray(points, dtype=np.float64)
+        points = points[np.isfinite(points).all(axis=1)]
+        found = {"shank": np.zeros((0, 3)), "forearm": np.zeros((0, 3))}
+        if len(points) < c.min_points:
+            return found
+        z = points[:, 2]
+        self._lowest.append(float(np.min(z)))
+        self._highest.append(float(np.max(z)))
+        floor = float(np.median(self._lowest))
+        height = float(np.median(self._highest)) - floor
+        if height <= 0.0:
+            return found
+        h = (z - floor) / height
+        found["shank"] = self._groups(points[(h > c.shank_band[0]) & (h < c.shank_band[1])])
+        trunk = (h > c.trunk_band[0]) & (h < c.trunk_band[1])
+        if trunk.sum() >= c.min_points:
+            off = np.linalg.norm(points[:, :2] - np.median(points[trunk, :2], axis=0), axis=1) / height
+            found["forearm"] = self._groups(points[(h > c.forearm_band[0]) & (h < c.forearm_band[1])
+                                                   & (off > c.forearm_off_trunk)])
+        return found
+
+    def _groups(self, points: np.ndarray) -> np.ndarray:
+        """Principal axes (K, 3) of the connected, elongated groups of ``points``."""
+        c = self.config
+        if len(points) < c.min_points:
+            return np.zeros((0, 3))
+        pairs = cKDTree(points).query_pairs(c.link_m, output_type="ndarray")
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+        count, labels = connected_components(graph, directed=False)
+        axes = []
+        for k in range(count):
+            group = points[labels == k]
+            if len(group) < c.min_points:
+                continue
+            variance, vectors = np.linalg.eigh(np.cov(group.T))
+            axis = vectors[:, 2]
+            along = group @ axis
+            if variance[2] >= c.min_elongation * variance[1] and np.ptp(along) >= c.min_length_m:
+                axes.append(axis)
+        return np.array(axes).reshape(-1, 3)
+
+
+#: ``bone_axis(name, stamps_ns)``: the unit direction (T, 3) in P of sensor ``name``'s bone at the DOT stamps
+#: ``stamps_ns`` (T,), NaN where the DOT has no data.
+BoneAxisAt = Callable[[str, np.ndarray], np.ndarray]
+
+
+class LatencyEstimator:
+    """Each sensor's latency from frames of limb axes (:meth:`observe`) and its DOT's bone directions.
+
+    A frame observed at pose time ``t`` is scored once the DOT data reaches
+    ``t + high_ns`` (at :meth:`update` with a later frame's pose time), so the
+    estimate depends on the data alone, not on when frames are processed.
+    """
+
+    def __init__(self, sensors: Mapping[str, str] = LIMB_SENSORS, config: LatencyConfig | None = None) -> None:
+        self.config = config or LatencyConfig()
+        self.sensors = dict(sensors)  # sensor -> limb
+        self.finder = LimbFinder(self.config)
+        self._grid = self.config.grid_ns
+        self._waiting: deque[tuple[int, dict[str, np.ndarray]]] = deque()  # (pose time, limb -> axes)
+        self._costs = {n: deque(maxlen=self.config.window) for n in self.sensors}  # per frame, (G,) over the grid
+        self._since = dict.fromkeys(self.sensors, 0)  # frames scored since the last estimate
+        #: the latest clear estimate per sensor (ns), None until there is one
+        self.estimate_ns: dict[str, int | None] = dict.fromkeys(self.sensors)
+        #: per sensor: how many frames its costs hold, and how clear its latest minimum was
+        self.frames = dict.fromkeys(self.sensors, 0)
+        self.contrast_deg2: dict[str, float] = dict.fromkeys(self.sensors, 0.0)
+
+    def observe(self, pose_stamp_ns: int, points: np.ndarray) -> None:
+        """The performer's points (N, 3) in P of a frame posed at ``pose_stamp_ns``."""
+        axes = self.finder.axes(points)
+        if any(len(a) for a in axes.values()):
+            self._waiting.append((pose_stamp_ns, axes))
+            while len(self._waiting) > self.config.window:  # scored late only if update() is not called
+                self._waiting.popleft()
+
+    def update(self, now_ns: int, bone_axis: BoneAxisAt) -> dict[str, int]:
+        """Score the frames the DOT data covers at ``now_ns`` (a pose time whose data is complete); the sensors
+        whose latency estimate is new, and their estimates (ns)."""
+        c = self.config
+        while self._waiting and self._waiting[0][0] + c.high_ns <= now_ns:
+            t, axes = self._waiting.popleft()
+            for name, limb in self.sensors.items():
+                cost = self._cost(bone_axis(name, t + self._grid), axes[limb])
+                if cost is not None:
+                    self._costs[name].append(cost)
+                    self._since[name] += 1
+        changed = {}
+        for name, costs in self._costs.items():
+            self.frames[name] = len(costs)
+            if len(costs) >= c.min_frames and self._since[name] >= c.every:
+                self._since[name] = 0
+                estimate = self._minimum(name, np.mean(costs, axis=0))
+                if estimate is not None and estimate != self.estimate_ns[name]:
+                    self.estimate_ns[name] = changed[name] = estimate
+        return changed
+
+    def _cost(self, bone: np.ndarray, axes: np.ndarray) -> np.ndarray | None:
+        """Truncated squared angle (G,) between the bone directions (G, 3) and the nearest of the axes (K, 3)."""
+        if len(axes) == 0 or not np.isfinite(bone).all():
+            return None
+        cos = np.abs(bone @ axes.T).max(axis=1)
+        angle = np.degrees(np.arccos(np.clip(cos, 0.0, 1.0)))
+        return np.minimum(angle, self.config.max_angle_deg) ** 2
+
+    def _minimum(self, name: str, cost: np.ndarray) -> int | None:
+        """The latency of the cost curve's minimum (parabola through its neighbours), None if not clear."""
+        c = self.config
+        k = int(np.argmin(cost))
+        reach = int(round(c.contrast_ns / c.step_ns))
+        if k < reach or k >= len(cost) - reach:
+            self.contrast_deg2[name] = 0.0
+            return None
+        self.contrast_deg2[name] = float(min(cost[k - reach], cost[k + reach]) - cost[k])
+        if self.contrast_deg2[name] < c.min_contrast_deg2:
+            return None
+        curvature = cost[k - 1] - 2.0 * cost[k] + cost[k + 1]
+        shift = 0.5 * (cost[k - 1] - cost[k + 1]) / curvature if curvature > 0.0 else 0.0
+        return int(round(self._grid[k] + shift * c.step_ns))

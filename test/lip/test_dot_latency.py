@@ -1,0 +1,128 @@
+"""The DOT latencies' online estimate (lip_ros.lip.dot_latency): on limbs of known motion, on the synchroniser's
+latency change, and on rig walks whose DOTs are stamped on arrival, 20-60 ms late each, jittered."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lip_msgs_py import imu_sample
+from lip_ros.core.imu_sync import ImuSynchronizer, SyncConfig
+from lip_ros.lip.batch import process_bag_batch
+from lip_ros.lip.dot_latency import LIMB_SENSORS, LatencyConfig, LatencyEstimator, LimbFinder
+from lip_ros.lip.nets.lip_model import LipModel
+from lip_ros.lip.pipeline import LipPipeline, PipelineConfig
+from lip_ros.rig.bag import write_capture_bag
+from lip_ros.rig.capture import CaptureConfig, CaptureSession
+
+MS = 1_000_000
+
+
+def _swing(t_s: np.ndarray, rate_hz: float = 0.9, amplitude_deg: float = 35.0) -> np.ndarray:
+    """A limb hanging down and swinging about x: its unit direction (T, 3) at times ``t_s``."""
+    a = np.radians(amplitude_deg) * np.sin(2.0 * np.pi * rate_hz * t_s)
+    return np.stack([np.zeros_like(a), np.sin(a), -np.cos(a)], axis=-1)
+
+
+def _limb_points(direction: np.ndarray, top: np.ndarray, length: float = 0.4, count: int = 12) -> np.ndarray:
+    """Points along a limb from ``top`` in ``direction``, with a little thickness."""
+    s = np.linspace(0.0, length, count)[:, None]
+    return top + s * direction + np.array([0.01, 0.0, 0.0]) * (np.arange(count) % 2)[:, None]
+
+
+def _trunk(height: float = 1.75) -> np.ndarray:
+    """A foot on the floor (z = 0) and a trunk (a cylinder of 0.15 m radius from half the height to the top)."""
+    z, a = np.meshgrid(np.linspace(0.5 * height, height, 12), np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False))
+    trunk = np.stack([0.15 * np.cos(a).ravel(), 0.15 * np.sin(a).ravel(), z.ravel()], axis=-1)
+    return np.concatenate([[[0.3, -0.1, 0.0], [0.32, -0.1, 0.01]], trunk])
+
+
+def _run(true_latency_ns: dict[str, int], swinging: set[str], frames: int = 200) -> LatencyEstimator:
+    """An estimator fed frames of a body whose limbs ``swinging`` swing (the others hang still), each DOT's
+    bone direction read ``true_latency_ns`` late."""
+    config = LatencyConfig()
+    estimator = LatencyEstimator(config=config)
+
+    def limb(name: str, t_s: np.ndarray) -> np.ndarray:
+        return _swing(t_s) if name in swinging else _swing(np.zeros_like(t_s))
+
+    def bone_axis(name: str, stamps_ns: np.ndarray) -> np.ndarray:
+        return limb(name, (stamps_ns - true_latency_ns[name]) * 1e-9)
+
+    for k in range(frames):
+        t_ns = 1_000_000_000 + k * 100 * MS
+        t = np.array([t_ns * 1e-9])
+        body = [_trunk()]
+        body.append(_limb_points(limb("left_ankle", t)[0], np.array([0.3, -0.1, 0.45]), 0.4))
+        body.append(_limb_points(limb("left_wrist", t)[0], np.array([0.3, -0.35, 1.15]), 0.3))
+        estimator.update(t_ns, bone_axis)
+        estimator.observe(t_ns, np.concatenate(body))
+    return estimator
+
+
+def test_the_latency_of_a_swinging_limb_is_found_and_a_still_one_left_alone():
+    true = {"left_wrist": 37 * MS, "right_wrist": 0, "left_ankle": 52 * MS, "right_ankle": 0}
+    estimator = _run(true, swinging={"left_wrist", "left_ankle"})
+    assert abs(estimator.estimate_ns["left_wrist"] - true["left_wrist"]) <= 2 * MS
+    assert abs(estimator.estimate_ns["left_ankle"] - true["left_ankle"]) <= 2 * MS
+    still = _run(true, swinging=set())
+    assert set(still.estimate_ns.values()) == {None}  # a still limb has no latency to see
+    assert min(still.frames.values()) >= still.config.min_frames  # though its limbs were seen
+
+
+def test_limbs_are_found_at_any_floor_height_and_body_size():
+    """The shank and forearm bands follow the performer's own lowest and highest points."""
+    for floor, size in ((0.0, 1.0), (-1.3, 0.84), (2.0, 1.16)):
+        finder = LimbFinder()
+        body = _trunk(1.75 * size)
+        shank = _limb_points(_swing(np.array([0.25]))[0], np.array([0.3, -0.1, 0.45 * size]), 0.4 * size)
+        points = np.concatenate([body, shank]) + [0.0, 0.0, floor]
+        axes = finder.axes(points)
+        assert len(axes["shank"]) == 1 and len(axes["forearm"]) == 0
+        assert abs(axes["shank"][0] @ _swing(np.array([0.25]))[0]) > np.cos(np.radians(1.0))
+
+
+def test_a_latency_set_later_moves_the_buffered_samples_as_if_it_had_been_configured():
+    def filled(sync: ImuSynchronizer) -> ImuSynchronizer:
+        for k in range(100):
+            angle = 0.02 * k
+            sync.add("a", imu_sample(k * 10 * MS, "a", [0.0, 0.0, np.sin(angle / 2), np.cos(angle / 2)],
+                                     [0.0] * 3, [0.0, 0.0, 9.81]))
+        return sync
+
+    later = filled(ImuSynchronizer(["a"]))
+    later.set_latency("a", 33 * MS)
+    configured = filled(ImuSynchronizer(["a"], SyncConfig(latency_ns=(33 * MS,))))
+    t = np.arange(100, 900, 7) * MS
+    assert later.latency_ns("a") == 33 * MS
+    np.testing.assert_array_equal(later.orientations("a", t), configured.orientations("a", t))
+    assert later.query(int(t[5])).same_as(configured.query(int(t[5])))
+    assert np.isnan(later.orientations("a", np.array([5_000 * MS]))).all()  # beyond the data: nothing held
+
+
+#: 20 s walks at 7 m, 1024 columns (the OS1-128's default), DOTs stamped 20-60 ms late, jittered 5 ms.
+WALK = CaptureConfig(scenario="walk", seconds=20.0, columns=1024, distance_m=7.0, imu_latency_ms=(20.0, 60.0),
+                     imu_latency_jitter_ms=5.0)
+#: How far an estimate may be from the DOT's true mean delay (its latency plus the mean jitter), ms.
+MAX_ERROR_MS = 12.0
+
+
+@pytest.mark.usefixtures("one_torch_thread")
+@pytest.mark.parametrize("seed", [3, 5, 6])
+def test_late_dots_latencies_are_estimated_on_a_rig_walk(seed, tmp_path):
+    session = CaptureSession(dataclasses.replace(WALK, seed=seed))
+    bag = tmp_path / "walk"
+    write_capture_bag(session, bag, progress=False)
+    pipeline = LipPipeline(LipModel.load(), PipelineConfig(), pose_batch=64)
+    list(process_bag_batch(pipeline, bag))
+    for name, stream in session.imu_streams().items():
+        delay_s = (stream.stamp_ns - session.epoch_ns) * 1e-9 - stream.t_true - session.imu_truth.clock_offset_s
+        true_ms = 1e3 * float(np.mean(delay_s))
+        estimate = pipeline.imu.latency.estimate_ns[name]
+        print(f"{name}: estimated {estimate and estimate / MS} ms, true {true_ms:.1f} ms")
+        assert estimate is not None, pipeline.imu.latency_status
+        assert abs(estimate / MS - true_ms) <= MAX_ERROR_MS
+        assert pipeline.imu.sync.latency_ns(name) == estimate
+    assert set(LIMB_SENSORS) == set(pipeline.imu.latency.estimate_ns)
