@@ -149,7 +149,8 @@ class LatencyEstimator:
         self.sensors = dict(sensors)  # sensor -> limb
         self.finder = LimbFinder(self.config)
         self._grid = self.config.grid_ns
-        self._waiting: deque[tuple[int, dict[str, np.ndarray]]] = deque()  # (pose time, limb -> axes)
+        # (pose time, limb -> axes) of frames not yet scored (all those seen while calibrating, up to a window)
+        self._waiting: deque[tuple[int, dict[str, np.ndarray]]] = deque(maxlen=self.config.window)
         self._costs = {n: deque(maxlen=self.config.window) for n in self.sensors}  # per frame, (G,) over the grid
         self._since = dict.fromkeys(self.sensors, 0)  # frames scored since the last estimate
         #: the latest clear estimate per sensor (ns), None until there is one
@@ -163,8 +164,6 @@ class LatencyEstimator:
         axes = self.finder.axes(points)
         if any(len(a) for a in axes.values()):
             self._waiting.append((pose_stamp_ns, axes))
-            while len(self._waiting) > self.config.window:  # scored late only if update() is not called
-                self._waiting.popleft()
 
     def update(self, now_ns: int, bone_axis: BoneAxisAt) -> dict[str, int]:
         """Score the frames the DOT data covers at ``now_ns`` (a pose time whose data is complete); the sensors

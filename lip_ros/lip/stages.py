@@ -173,7 +173,9 @@ class ImuStage:
                 return ms
             if est.estimate_ns[name] is not None:
                 return f"{ms} (estimated)"
-            return f"{ms} (not estimated: {est.frames[name]} of {est.config.min_frames} frames seen moving)"
+            if est.frames[name] < est.config.min_frames:
+                return f"{ms} (not estimated: limb seen in {est.frames[name]} of {est.config.min_frames} frames)"
+            return f"{ms} (not estimated: the limb has not moved enough)"
 
         return ", ".join(map(one, IMU_NAMES))
 

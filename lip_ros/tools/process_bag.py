@@ -43,6 +43,7 @@ from lip_ros.core import metrics
 from lip_ros.core.rotations import quat_to_matrix
 from lip_ros.lip.calibration import load_calibration
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
+from lip_ros.nodes.lip.calibration import DOT_LATENCY_VALUE, CalibrationNode
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
 from lip_ros.tools.ros_cli import ArgumentParser, ToolError, installed_script, run_tool, start_ros, tool_args
@@ -53,6 +54,7 @@ OUTPUTS = [LIP_TOPICS.joint_states, LIP_TOPICS.root_pose, LIP_TOPICS.joint_poses
            "/diagnostics"]
 MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their stamps are this close
 POSE_FRAMES = "pose_node: frames"  # the diagnostic status with the poses and the graph's latency
+CALIBRATION_FRAMES = f"{CalibrationNode.NAME}: frames"  # ... with the DOT latencies
 
 
 @dataclass
@@ -66,6 +68,7 @@ class ProcessSummary:
     translation_cm: float | None = None
     mpjpe_mm: float | None = None  # root-relative, from /lip/joint_poses
     calibration: str = ""  # which calibration the run used
+    dot_latency: str = ""  # the DOT latencies taken off at the end, estimated or not
     angular_deg: float | None = None  # mean geodesic error of the 24 global joint rotations
     bag_s: float | None = None  # duration of the input bag
     wall_s: float | None = None  # start of playback to the last pose (or the end of playback, if later)
@@ -84,6 +87,8 @@ class ProcessSummary:
                        f"MPJPE {self.mpjpe_mm:.1f} mm, global angular error {self.angular_deg:.1f} deg")
         if self.calibration:
             out.append(f"calibration: {self.calibration}")
+        if self.dot_latency:
+            out.append(f"DOT latency taken off (ms): {self.dot_latency}")
         if self.wall_s is not None and self.bag_s is not None:
             out.append(f"wall time (playback start -> last pose): {self.wall_s:.1f} s for {self.bag_s:.1f} s of bag, "
                        f"{self.bag_s / self.wall_s:.2f}x real time (--rate {self.rate:g})")
@@ -109,7 +114,8 @@ def summarize_outputs(inputs: Path, outputs: Path) -> ProcessSummary:
               for k, v in values.items() if k.startswith("frames ") and int(v)}
     latency = {k.removeprefix("graph_latency_ms_"): float(v) for k, v in last[POSE_FRAMES].items()
                if k.startswith("graph_latency_ms_")}
-    summary = ProcessSummary(bag_topics(inputs)[LIDAR_TOPIC].count, frames, latency)
+    summary = ProcessSummary(bag_topics(inputs)[LIDAR_TOPIC].count, frames, latency,
+                             dot_latency=last.get(CALIBRATION_FRAMES, {}).get(DOT_LATENCY_VALUE, ""))
     if GT_TOPICS.joint_poses not in bag_topics(inputs):
         return summary
     truth = _poses(inputs, GT_TOPICS.joint_poses)

@@ -28,6 +28,7 @@ from lip_ros.lip.batch import replay_bag
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.pipeline import LipPipeline, PipelineConfig
 from lip_ros.lip.sensors import IMU_NAMES
+from lip_ros.nodes.lip.calibration import DOT_LATENCY_VALUE
 from lip_ros.resources import params_path
 
 pytestmark = pytest.mark.ros  # DDS traffic or subprocesses
@@ -274,6 +275,6 @@ def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_no
         proc.communicate(timeout=30)
     assert statuses["calibration_node: frames"].values["DOT heading reset"] == "done: 4 DOTs reset"
     assert statuses["calibration_node: frames"].values["DOT headings"] == "unknown"  # nothing calibrated
-    assert (statuses["calibration_node: frames"].values["DOT latency taken off (ms)"]
-            == ", ".join(f"{n} {ms} (not estimated: 0 of 60 frames seen moving)"
+    assert (statuses["calibration_node: frames"].values[DOT_LATENCY_VALUE]
+            == ", ".join(f"{n} {ms} (not estimated: limb seen in 0 of 60 frames)"
                          for n, ms in zip(IMU_NAMES, (30, 40, 50, 61))))

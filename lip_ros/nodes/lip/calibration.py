@@ -61,8 +61,10 @@ from lip_ros.nodes.base import (
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
 from lip_ros.nodes.lip.ground import GROUND_PARAM, subscribe_ground
 
-__all__ = ["CalibrationNode", "main"]
+__all__ = ["CalibrationNode", "main", "DOT_LATENCY_VALUE"]
 
+#: The value of ``calibration_node: frames`` on /diagnostics with the DOT latencies in use.
+DOT_LATENCY_VALUE = "DOT latency taken off (ms)"
 
 
 def _four_topics(value: Any) -> str | None:
@@ -254,7 +256,7 @@ class CalibrationNode(GraphNode):
                                           "pending": self.stage.pending, "bones with a held DOT sample": self._held,
                                           "samples held for the calibration": self.stage.calibration_samples,
                                           "DOT heading reset": self._heading_reset,
-                                          "DOT latency taken off (ms)": self.stage.latency_status,
+                                          DOT_LATENCY_VALUE: self.stage.latency_status,
                                           "DOT headings": "unknown" if self.stage.calibration is None
                                           else self.stage.calibration.headings,
                                           "last sync": self._last_sync, **self._latency.values("latency_ms")}
