@@ -22,11 +22,11 @@ from lip_ros.lip.sensors import IMU_TOPICS, LIDAR_TOPIC
 from lip_ros.resources import params_dir
 
 WEIGHTS = params_dir() / "weights" / SHIPPED_WEIGHTS
-# Bounds on the posed frames after the calibration poses. The shipped weights of 2026-11-21 (float16
-# lip_small.pt, sha256 35d17ec5...) measured 15.1 mm MPJPE of the published joints and 1.7 cm translation
-# error on this bag.
-MAX_MPJPE_MM = 40.0
-MAX_TRANSLATION_CM = 5.0
+# Bounds on the posed frames after the calibration poses. The shipped weights of 2026-11-25 (float16
+# lip_small.pt, sha256 0c087a02...) measured 13.8 mm MPJPE of the published joints and 2.0 cm translation
+# error on this bag (the held-out set: 13.8 mm, 1.96 cm, README); the bounds leave 1.5x for retraining.
+MAX_MPJPE_MM = 21.0
+MAX_TRANSLATION_CM = 3.0
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
