@@ -112,6 +112,9 @@ def summarize_outputs(inputs: Path, outputs: Path) -> ProcessSummary:
         raise ToolError(f"{outputs} holds no diagnostics of the LIP graph ({POSE_FRAMES})")
     frames = {k.removeprefix("frames "): int(v) for name, values in last.items() if name.endswith(": frames")
               for k, v in values.items() if k.startswith("frames ") and int(v)}
+    pending = sum(int(values.get("pending", 0)) for name, values in last.items() if name.endswith(": frames"))
+    if pending:  # waiting for DOT data past the end of the bag
+        frames["pending"] = pending
     latency = {k.removeprefix("graph_latency_ms_"): float(v) for k, v in last[POSE_FRAMES].items()
                if k.startswith("graph_latency_ms_")}
     summary = ProcessSummary(bag_topics(inputs)[LIDAR_TOPIC].count, frames, latency,
