@@ -228,6 +228,23 @@ def _ms(ns: int) -> str:
 _PerSensor = tuple[np.ndarray, list[SensorStatus], np.ndarray, list[str]]  # values, status, age_ns, reasons
 
 
+def _bracket(stamps: np.ndarray, t: np.ndarray, config: SyncConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For times ``t`` in sorted unique ``stamps`` (not empty): the last sample at or before each (-1: none), the
+    first after it, and whether it can be interpolated (an exact sample, or a pair at most ``max_gap_ns`` apart)."""
+    after = np.searchsorted(stamps, t, side="right")
+    before = after - 1
+    lo, hi = np.maximum(before, 0), np.minimum(after, stamps.size - 1)
+    exact = (before >= 0) & (stamps[lo] == t)
+    pair = (before >= 0) & (after < stamps.size) & (stamps[hi] - stamps[lo] <= config.max_gap_ns)
+    return before, after, exact | pair
+
+
+def _weights(stamps: np.ndarray, t: np.ndarray, lo: np.ndarray, hi: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Interpolation weights of the samples ``hi`` at the times ``t[ok]`` (0 on an exact sample)."""
+    s0, s1 = stamps[lo[ok]], stamps[hi[ok]]
+    return np.where(s1 == s0, 0.0, (t[ok] - s0).astype(np.float64) / np.maximum(s1 - s0, 1).astype(np.float64))
+
+
 def _interpolate(
     stamps: np.ndarray, rows: np.ndarray, t: np.ndarray, config: SyncConfig, evicted: bool = False
 ) -> _PerSensor:
@@ -239,15 +256,10 @@ def _interpolate(
     reasons = ["no data"] * n
     if count == 0:
         return out, status, age, reasons
-    after = np.searchsorted(stamps, t, side="right")  # first sample later than t
-    before = after - 1  # last sample at or before t (-1: none)
+    before, after, ok = _bracket(stamps, t, config)
     lo, hi = np.maximum(before, 0), np.minimum(after, count - 1)
-    exact = (before >= 0) & (stamps[lo] == t)
-    pair = (before >= 0) & (after < count) & (stamps[hi] - stamps[lo] <= config.max_gap_ns)
-    ok = exact | pair
     if ok.any():
-        s0, s1, tq = stamps[lo[ok]], stamps[hi[ok]], t[ok]
-        w = np.where(exact[ok], 0.0, (tq - s0).astype(np.float64) / np.maximum(s1 - s0, 1).astype(np.float64))
+        w = _weights(stamps, t, lo, hi, ok)
         r0, r1 = rows[lo[ok]], rows[hi[ok]]
         out[ok, _QUAT] = _slerp(r0[:, _QUAT], r1[:, _QUAT], w)
         out[ok, 4:] = (1.0 - w)[:, None] * r0[:, 4:] + w[:, None] * r1[:, 4:]
@@ -391,11 +403,13 @@ class ImuSynchronizer:
     def orientations(self, name: str, stamp_ns: np.ndarray) -> np.ndarray:
         """R_I_S (T, 4) of ``name`` interpolated at the measurement times of samples stamped ``stamp_ns`` (T,), NaN
         where the buffer does not bracket them (nothing is held)."""
-        b = self._buffers[name]
+        stamps, rows = self._buffers[name].stamps, self._buffers[name].rows
         t = np.asarray(stamp_ns, dtype=np.int64) - self._latency_ns[name]
-        values, status, _, _ = _interpolate(b.stamps, b.rows, t, self.config, b.evicted)
-        quat = values[:, _QUAT]
-        quat[np.array(status) != SensorStatus.OK] = np.nan
+        quat = np.full((t.size, 4), np.nan)
+        if stamps.size:
+            before, after, ok = _bracket(stamps, t, self.config)
+            lo, hi = np.maximum(before, 0), np.minimum(after, stamps.size - 1)
+            quat[ok] = _slerp(rows[lo[ok], _QUAT], rows[hi[ok], _QUAT], _weights(stamps, t, lo, hi, ok))
         return quat
 
     def insert(self, name: str, stamp_ns: int, row: np.ndarray, code: int) -> str | None:

@@ -33,9 +33,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 __all__ = ["LatencyConfig", "LimbFinder", "LatencyEstimator", "LIMB_SENSORS"]
 
@@ -50,7 +47,7 @@ class LatencyConfig:
     enabled: bool = True
     low_ns: int = -60_000_000  # latencies considered (a configured latency too large shows as negative)
     high_ns: int = 200_000_000
-    step_ns: int = 2_000_000
+    step_ns: int = 4_000_000
     window: int = 300  # frames whose costs are summed, per sensor (30 s at 10 Hz)
     min_frames: int = 60  # frames observed before the first estimate
     every: int = 25  # frames between two estimates
@@ -115,11 +112,10 @@ class LimbFinder:
         c = self.config
         if len(points) < c.min_points:
             return np.zeros((0, 3))
-        pairs = cKDTree(points).query_pairs(c.link_m, output_type="ndarray")
-        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-        count, labels = connected_components(graph, directed=False)
+        points = points[:: -(-len(points) // _MAX_GROUPED)]  # thinned evenly: the groups' axes stay
+        labels = _components(points, c.link_m)
         axes = []
-        for k in range(count):
+        for k in np.unique(labels):
             group = points[labels == k]
             if len(group) < c.min_points:
                 continue
@@ -129,6 +125,22 @@ class LimbFinder:
             if variance[2] >= c.min_elongation * variance[1] and np.ptp(along) >= c.min_length_m:
                 axes.append(axis)
         return np.array(axes).reshape(-1, 3)
+
+
+#: At most this many points of one band are grouped (more are thinned evenly).
+_MAX_GROUPED = 300
+
+
+def _components(points: np.ndarray, link_m: float) -> np.ndarray:
+    """Labels (N,) of the connected groups of ``points`` (N, 3), linked closer than ``link_m`` (dense: N is small)."""
+    near = np.sum((points[:, None, :] - points[None, :, :]) ** 2, axis=-1) <= link_m * link_m
+    labels = np.arange(len(points))
+    while True:  # every point takes the least label of its neighbours, then of that label's point
+        lowest = np.where(near, labels[None, :], len(points)).min(axis=1)
+        lowest = lowest[lowest]
+        if np.array_equal(lowest, labels):
+            return labels
+        labels = lowest
 
 
 #: ``bone_axis(name, stamps_ns)``: the unit direction (T, 3) in P of sensor ``name``'s bone at the DOT stamps
