@@ -25,6 +25,7 @@ CORE = [
     "fpsample>=1.0,<2",
     "isal>=1.7,<2",  # lip_ros.bagstream checks MCAP chunk CRCs with its crc32
     "matplotlib>=3.8,<4",
+    "embreex>=4.4,<5",  # ray casting of the HSC4D rig's scenes (lip_ros.rig.mesh_raycast)
 ]
 TEST = [
     "pytest>=8,<10",

@@ -5,7 +5,8 @@
 - ROS (rclpy and the message packages) only in ``lip_ros.nodes``, ``lip_ros.tools`` and the rclpy backend of
   ``lip_msgs_py``; the ROS-free packages never import the nodes or tools either.
 - Heavy libraries only in the modules that wrap them: torch in the LIP networks, their training and the
-  torch kinematics; kiss-icp and gtsam each in one module of the HSC4D branch.
+  torch kinematics; kiss-icp and gtsam each in one module of the HSC4D branch; embreex in the rig's mesh
+  ray casting.
 - Every installed executable starts in ``lip_ros.nodes`` or ``lip_ros.tools``.
 """
 
@@ -32,6 +33,7 @@ HEAVY = {
     "torch": (("lip_ros.core.torch_kinematics", "lip_ros.lip.nets", "lip_ros.lip.train"), None),
     "kiss_icp": (("lip_ros.hsc4d",), 1),
     "gtsam": (("lip_ros.hsc4d",), 1),
+    "embreex": (("lip_ros.rig.mesh_raycast",), 1),
 }
 
 

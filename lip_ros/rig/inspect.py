@@ -1,4 +1,5 @@
-"""Summarise and plot a capture bag: topics, rates, cloud layout, performer points, IMUs at rest, ground truth."""
+"""Summarise and plot a capture bag (topics, rates, cloud layout, performer points, IMUs at rest, ground truth), and
+plot a scene with height of the HSC4D rig."""
 
 from __future__ import annotations
 
@@ -15,8 +16,10 @@ from lip_ros.core.skeleton import load_skeleton
 from lip_ros.lip.sensors import LIDAR_TOPIC
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.rig.bag import LABELS_FILE, TRUTH_FILE
+from lip_ros.rig.mesh_raycast import MeshRaycaster
+from lip_ros.rig.terrain import SITE_HALF_M, Terrain
 
-__all__ = ["BagSummary", "summarize_bag", "plot_bag"]
+__all__ = ["BagSummary", "summarize_bag", "plot_bag", "plot_terrain"]
 
 
 @dataclass
@@ -144,5 +147,44 @@ def plot_bag(path: str | Path, out_png: str | Path, frame_index: int | None = No
     fig.tight_layout()
     out_png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    return out_png
+
+
+def plot_terrain(terrain: Terrain, out_png: str | Path, resolution_m: float = 0.1) -> Path:
+    """A PNG: the site from above (height of what a ray from the sky hits first; walkable surfaces in colour,
+    obstacles in grey), and the height profiles along the stair flight and the ramp."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_png = Path(out_png)
+    sx, sy = SITE_HALF_M
+    x, y = np.meshgrid(np.arange(-sx, sx, resolution_m) + 0.5 * resolution_m,
+                       np.arange(-sy, sy, resolution_m) + 0.5 * resolution_m)
+    top = 50.0
+    dist, tri = MeshRaycaster(terrain.triangles()).cast(np.stack([x.ravel(), y.ravel(), np.full(x.size, top)], 1),
+                                                        np.array([0.0, 0.0, -1.0]))
+    height = (top - dist).reshape(x.shape)
+    obstacle = ~terrain.blocks.walkable[tri // 12].reshape(x.shape)
+    lay = terrain.layout
+    fig, axes = plt.subplots(1, 2, figsize=(15, 5.5), gridspec_kw={"width_ratios": [1.6, 1]})
+    image = axes[0].imshow(np.ma.masked_where(obstacle, height), origin="lower", extent=(-sx, sx, -sy, sy),
+                           cmap="viridis")
+    axes[0].imshow(np.ma.masked_where(~obstacle, obstacle), origin="lower", extent=(-sx, sx, -sy, sy), cmap="gray",
+                   vmin=0, vmax=2)
+    fig.colorbar(image, ax=axes[0], label="surface height (m)")
+    axes[0].set(xlabel="x (m)", ylabel="y (m)", title="site from above (grey: obstacles)")
+    for name, band, run in (("stairs", lay["stair_y_m"], lay["risers"] * lay["tread_m"]),
+                            ("ramp", lay["ramp_y_m"], lay["ramp_run_m"])):
+        px = np.linspace(lay["terrace_x_m"] - run - 2.0, lay["terrace_x_m"] + 2.0, 400)
+        pz = terrain.surface_height(np.stack([px, np.full(px.size, np.mean(band))], 1))
+        axes[1].plot(px, pz, label=name)
+    axes[1].set(xlabel="x (m)", ylabel="height (m)", title=(
+        f"{lay['risers']} risers of {100 * lay['riser_m']:.1f} cm, ramp {lay['ramp_deg']:.1f} deg"))
+    axes[1].legend()
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=80)
     plt.close(fig)
     return out_png

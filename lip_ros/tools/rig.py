@@ -2,6 +2,7 @@
 
   lip_rig make-bag --scenario walk --seconds 20 --seed 3 --out DIR
   lip_rig inspect DIR [--plot PNG]
+  lip_rig site --seed 3 [--plot PNG]     (a scene with height of the HSC4D rig)
 """
 
 from __future__ import annotations
@@ -47,6 +48,19 @@ def _inspect(args: argparse.Namespace) -> int:
     print("\n".join(summarize_bag(args.bag).lines()))
     if args.plot:
         print(f"plot: {plot_bag(args.bag, args.plot)}")
+    return 0
+
+
+def _site(args: argparse.Namespace) -> int:
+    from lip_ros.rig.inspect import plot_terrain
+    from lip_ros.rig.terrain import SITE_HALF_M, Terrain
+
+    terrain = Terrain.random(args.seed)
+    print(f"site {2 * SITE_HALF_M[0]:g} x {2 * SITE_HALF_M[1]:g} m, {len(terrain.blocks)} blocks: "
+          + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in terrain.layout.items()
+                      if not isinstance(v, tuple)))
+    if args.plot:
+        print(f"plot: {plot_terrain(terrain, args.plot)}")
     return 0
 
 
@@ -97,6 +111,10 @@ def parser() -> argparse.ArgumentParser:
     i.add_argument("bag", type=Path)
     i.add_argument("--plot", type=Path, help="write a PNG here")
     i.set_defaults(func=_inspect)
+    t = sub.add_parser("site", help="a scene with height of the HSC4D rig, drawn from a seed (and its plot)")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--plot", type=Path, help="write a PNG here")
+    t.set_defaults(func=_site)
     return p
 
 

@@ -1,0 +1,40 @@
+"""Ray casting on a static triangle mesh with Intel Embree (``embreex``): the one module that imports it.
+
+Used by the HSC4D rig, whose LiDAR moves through a scene of thousands of
+triangles (:class:`lip_ros.rig.terrain.Terrain`): a 64 x 1024 sweep is cast in
+milliseconds, each ray from its own origin (the sensor's pose at its column's
+time).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
+
+__all__ = ["MeshRaycaster"]
+
+
+class MeshRaycaster:
+    """The first hit of rays on the triangles (T, 3, 3) given at construction (any winding)."""
+
+    def __init__(self, triangles: np.ndarray) -> None:
+        triangles = np.asarray(triangles, dtype=np.float32)
+        if triangles.ndim != 3 or triangles.shape[1:] != (3, 3) or not len(triangles):
+            raise ValueError(f"triangles must be (T, 3, 3) with T > 0, not {triangles.shape}")
+        self._scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(self._scene, triangles)
+        self.triangles = len(triangles)
+
+    def cast(self, origins: np.ndarray, dirs: np.ndarray, max_range: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Distance (N,) along the unit ``dirs`` from ``origins`` to the first triangle (inf: none within
+        ``max_range``), and the hit triangle's index (N,) (-1: none); ``origins`` and ``dirs`` (N, 3) or (3,)."""
+        origins, dirs = np.broadcast_arrays(np.atleast_2d(origins), np.atleast_2d(dirs))
+        origins = np.ascontiguousarray(origins, dtype=np.float32)
+        dirs = np.ascontiguousarray(dirs, dtype=np.float32)
+        if not len(dirs):
+            return np.zeros(0), np.zeros(0, dtype=np.int64)
+        hit = self._scene.run(origins, dirs, output=1)
+        index = hit["primID"].astype(np.int64)
+        found = (hit["geomID"] >= 0) & (hit["tfar"] <= max_range)
+        return np.where(found, hit["tfar"].astype(np.float64), np.inf), np.where(found, index, -1)

@@ -1,0 +1,98 @@
+"""The HSC4D rig's scenes with height (lip_ros.rig.terrain) and their ray casting (lip_ros.rig.mesh_raycast): the
+drawn stairs, ramp and terrace are what the surface says, and the surface is what the rays see."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lip_ros.rig.mesh_raycast import MeshRaycaster
+from lip_ros.rig.terrain import SITE_HALF_M, Terrain
+from lip_ros.tools.rig import main as lip_rig
+
+SEEDS = (0, 3, 11)
+
+
+@pytest.fixture(scope="module", params=SEEDS)
+def terrain(request) -> Terrain:
+    return Terrain.random(request.param)
+
+
+def test_the_stair_treads_and_the_terrace_are_at_whole_risers(terrain):
+    lay = terrain.layout
+    assert 10 <= lay["risers"] <= 16 and 0.15 <= lay["riser_m"] <= 0.18 and 0.28 <= lay["tread_m"] <= 0.32
+    k = np.arange(1, lay["risers"])
+    x = lay["terrace_x_m"] - (lay["risers"] - k) * lay["tread_m"] + 0.5 * lay["tread_m"]
+    y = np.full(k.size, np.mean(lay["stair_y_m"]))
+    np.testing.assert_allclose(terrain.surface_height(np.stack([x, y], 1)), k * lay["riser_m"], atol=1e-9)
+    on_terrace = [lay["terrace_x_m"] + 1.0, lay["terrace_y_m"][1] - 1.0]
+    np.testing.assert_allclose(terrain.surface_height([on_terrace]), lay["terrace_height_m"], atol=1e-9)
+    np.testing.assert_allclose(terrain.surface_height([[lay["terrace_x_m"] - 30.0, 15.0]]), 0.0, atol=1e-9)
+
+
+def test_the_ramp_climbs_from_the_ground_to_the_terrace_at_its_angle(terrain):
+    lay = terrain.layout
+    assert 5.0 <= lay["ramp_deg"] <= 12.0
+    x = lay["terrace_x_m"] - np.linspace(0.2, lay["ramp_run_m"] - 0.2, 20)
+    z = terrain.surface_height(np.stack([x, np.full(x.size, np.mean(lay["ramp_y_m"]))], 1))
+    slope = np.degrees(np.arctan(-np.polyfit(x, z, 1)[0]))
+    assert abs(-slope - lay["ramp_deg"]) < 1e-6
+    np.testing.assert_allclose([z[0] + 0.2 * np.tan(np.radians(lay["ramp_deg"])), z[-1]],
+                               [lay["terrace_height_m"], 0.2 * np.tan(np.radians(lay["ramp_deg"]))], atol=1e-9)
+
+
+def test_rays_from_above_land_on_the_surface_and_the_way_up_is_clear(terrain):
+    """Straight down from 20 m over the whole site: where a walkable block is hit, at the surface height; over the
+    stair flight and the ramp nothing stands in the way."""
+    caster = MeshRaycaster(terrain.triangles())
+    rng = np.random.default_rng(0)
+    sx, sy = SITE_HALF_M
+    xy = rng.uniform([-sx + 0.01, -sy + 0.01], [sx - 0.01, sy - 0.01], (20000, 2))
+    dist, tri = caster.cast(np.concatenate([xy, np.full((len(xy), 1), 20.0)], 1), np.array([0.0, 0.0, -1.0]))
+    assert np.isfinite(dist).all()  # the ground covers the site
+    walkable = terrain.blocks.walkable[tri // 12]
+    np.testing.assert_allclose(20.0 - dist[walkable], terrain.surface_height(xy[walkable]), atol=1e-4)
+    assert 0.8 < walkable.mean() < 1.0  # obstacles stand on part of it
+    lay = terrain.layout
+    for band, x_lo in ((lay["stair_y_m"], lay["terrace_x_m"] - lay["risers"] * lay["tread_m"]),
+                       (lay["ramp_y_m"], lay["terrace_x_m"] - lay["ramp_run_m"])):
+        x, y = np.meshgrid(np.linspace(x_lo, lay["terrace_x_m"] + 1.0, 40), np.linspace(*band, 5))
+        _, tri = caster.cast(np.stack([x.ravel(), y.ravel(), np.full(x.size, 20.0)], 1), np.array([0.0, 0.0, -1.0]))
+        assert terrain.blocks.walkable[tri // 12].all()
+
+
+def test_a_horizontal_ray_hits_the_first_wall_and_the_sky_is_empty(terrain):
+    caster = MeshRaycaster(terrain.triangles())
+    lay = terrain.layout
+    # straight up from 1 m above the terrace: nothing up there but sky
+    dist, tri = caster.cast(np.array([[lay["terrace_x_m"] + 2.0, -19.5, lay["terrace_height_m"] + 1.0]]),
+                            np.array([[0.0, 0.0, 1.0]]))
+    assert np.isinf(dist[0]) and tri[0] == -1
+    # eastwards 0.1 m above the ground, in the stair band: the first riser's face, where the flight starts
+    start = lay["terrace_x_m"] - (lay["risers"] - 1) * lay["tread_m"]
+    dist, _ = caster.cast(np.array([[start - 5.0, np.mean(lay["stair_y_m"]), 0.1]]), np.array([[1.0, 0.0, 0.0]]))
+    assert dist[0] == pytest.approx(5.0, abs=1e-4)
+    dist, _ = caster.cast(np.array([[start - 5.0, np.mean(lay["stair_y_m"]), 0.1]]), np.array([[1.0, 0.0, 0.0]]),
+                          max_range=4.0)
+    assert np.isinf(dist[0])
+
+
+def test_sites_are_large_deterministic_and_differ_by_seed():
+    a, b, c = Terrain.random(5), Terrain.random(5), Terrain.random(6)
+    assert 4.0 * SITE_HALF_M[0] * SITE_HALF_M[1] >= 1000.0
+    np.testing.assert_array_equal(a.triangles(), b.triangles())
+    assert a.layout == b.layout and a.layout != c.layout
+
+
+def test_the_raycaster_refuses_what_is_not_triangles():
+    with pytest.raises(ValueError, match="triangles"):
+        MeshRaycaster(np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="triangles"):
+        MeshRaycaster(np.zeros((0, 3, 3)))
+
+
+def test_lip_rig_site_prints_and_draws_a_site(tmp_path, capsys):
+    png = tmp_path / "site.png"
+    assert lip_rig(["site", "--seed", "3", "--plot", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert f"risers {Terrain.random(3).layout['risers']}" in out and png.stat().st_size > 10_000
