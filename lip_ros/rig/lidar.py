@@ -15,9 +15,11 @@ mounting yaw.
 The sensor has a fixed pose (``rotation`` R_S_L, ``position`` p_S_L) in the
 scene frame S in which the scene and the actors live; for the LIP rig S = L and
 the pose is the identity (the ground is at ``z = -h`` in the scene). Points are
-reported in L. A moving sensor (the hip-worn branch) would need a pose per
-column in ``_rays_s``, ``_footprint`` and ``column_of`` and a static image per
-frame; the sensor model does not depend on the pose.
+reported in L. A moving sensor (the hip-worn HSC4D rig) is cast by
+``scan_moving``: each column from the sensor's pose at that column's firing
+time, against a triangle mesh (``lip_ros.rig.mesh_raycast``), the points in L
+at that time, as the real sensor reports them (motion distortion included);
+the sensor model is the same.
 
 Per frame, the static scene comes from a range image cast once per capture
 (``static_image``); each actor's pose is evaluated once, at the time the sweep
@@ -35,6 +37,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Protocol
 
 import numpy as np
 
@@ -43,7 +46,7 @@ from lip_ros.core.body import BodyModel
 from lip_ros.rig.scene import Scene
 from lip_ros.rig.trajectory import Trajectory
 
-__all__ = ["Actor", "PoseFn", "StaticImage", "Frame", "OusterModel"]
+__all__ = ["Actor", "PoseFn", "SensorPoses", "SurfaceCaster", "StaticImage", "Frame", "OusterModel"]
 
 #: A pose source: seconds since the capture start -> (glob_rot (24, 3, 3), joint_pos (24, 3)) in S.
 PoseFn = Callable[[float], tuple[np.ndarray, np.ndarray]]
@@ -68,6 +71,19 @@ class Actor:
             glob, pos = self.motion.sample(np.array([t])).global_pose(self.motion.skeleton)
             return glob[0], pos[0]
         return self.motion(t)
+
+
+#: ``poses(t_ns)``: the sensor's pose R_W_L (N, 3, 3), p_W_L (N, 3) in the scene at the times ``t_ns`` (N,).
+SensorPoses = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+class SurfaceCaster(Protocol):
+    """A static surface to cast rays on (``lip_ros.rig.mesh_raycast.MeshRaycaster``)."""
+
+    normals: np.ndarray  # (T, 3) unit normal of each surface element
+
+    def cast(self, origins: np.ndarray, dirs: np.ndarray, max_range: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Distance to the first hit along each ray (inf: none) and the element hit (-1: none)."""
 
 
 @dataclass(frozen=True)
@@ -289,6 +305,29 @@ class OusterModel:
                 image[rows, cols] = np.where(nearer, value, image[rows, cols])
         points = self._measure(best, cos, refl, labels, rng)
         return Frame(points, labels, int(stamp_ns), np.array(stamps, dtype=np.int64), poses)
+
+    def scan_moving(
+        self,
+        stamp_ns: int,
+        surface: SurfaceCaster,
+        poses: SensorPoses,
+        rng: np.random.Generator,
+        reflectivity: float = 0.5,
+    ) -> Frame:
+        """Simulate the frame whose column 0 fires at ``stamp_ns`` from a moving sensor: column j cast from
+        ``poses(stamp_ns + column_t_ns[j])`` against ``surface`` (of uniform ``reflectivity``), its points in L at
+        that pose (the sensor's own ``rotation`` and ``position`` are not used)."""
+        rot, pos = poses(stamp_ns + self.column_t_ns)
+        dirs = np.einsum("wab,hwb->hwa", rot, self.directions)  # (H, W, 3) in the scene
+        origins = np.broadcast_to(pos[None], dirs.shape)
+        dist, element = surface.cast(origins.reshape(-1, 3), dirs.reshape(-1, 3), self.max_range)
+        hit = element >= 0
+        cos = np.zeros(dist.shape)
+        cos[hit] = np.abs(np.einsum("na,na->n", surface.normals[element[hit]], dirs.reshape(-1, 3)[hit]))
+        labels = np.full(self.shape, -1, dtype=np.int16)
+        points = self._measure(dist.reshape(self.shape), cos.reshape(self.shape),
+                               np.where(hit, reflectivity, 0.0).reshape(self.shape), labels, rng)
+        return Frame(points, labels, int(stamp_ns), np.zeros(0, dtype=np.int64), [])
 
     def _measure(
         self, true_range: np.ndarray, cos: np.ndarray, refl: np.ndarray, labels: np.ndarray, rng: np.random.Generator

@@ -24,7 +24,9 @@ class MeshRaycaster:
             raise ValueError(f"triangles must be (T, 3, 3) with T > 0, not {triangles.shape}")
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(self._scene, triangles)
-        self.triangles = len(triangles)
+        cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]).astype(np.float64)
+        #: (T, 3) each triangle's unit normal (by its winding)
+        self.normals = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-12)
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray, max_range: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
         """Distance (N,) along the unit ``dirs`` from ``origins`` to the first triangle (inf: none within
