@@ -1,7 +1,8 @@
 """The HSC4D branch, ROS-free: a hip-worn Ouster and a 17-IMU suit ("Human-centered 4D Scene Capture").
 
-Not built yet (its own issue). What goes here: LiDAR odometry and mapping
-(kiss-icp, wrapped in one module), time sync by the jump, LiDAR-to-pelvis
+Being built (its own issue). Here so far: :mod:`~lip_ros.hsc4d.jump_sync`,
+the suit's clock against the LiDAR's from the jump. To come: LiDAR odometry
+and mapping (kiss-icp, wrapped in one module), LiDAR-to-pelvis
 extrinsics, the pose graph fusing the LiDAR trajectory with the suit's motion
 (gtsam, wrapped in one module) and the scene-aware optimisation (foot
 contact, sliding, smoothness). Like :mod:`lip_ros.lip` it uses
