@@ -62,7 +62,8 @@ def suit_apex(stamp_ns: np.ndarray, specific_force: np.ndarray, config: JumpSync
     if t.size < 2:
         return None
     width = max(1, int(round(c.smooth_s * 1e9 / max(float(np.median(np.diff(t))), 1.0))))
-    norm = np.convolve(norm, np.ones(width) / width, mode="same")
+    norm = np.convolve(np.pad(norm, (width // 2, width - 1 - width // 2), mode="edge"), np.ones(width) / width,
+                       mode="valid")
     level = c.free_fall * GRAVITY
     air = norm < level
     edges = np.flatnonzero(np.diff(air.astype(np.int8)))  # k: air changes between k and k + 1
@@ -79,22 +80,23 @@ def suit_apex(stamp_ns: np.ndarray, specific_force: np.ndarray, config: JumpSync
     return None
 
 
-def lidar_apex(stamp_ns: np.ndarray, height_m: np.ndarray, flight_s: float, config: JumpSyncConfig | None = None
-               ) -> float | None:
-    """The apex time (ns) of the first jump in the sensor's height trajectory (N,) at ``stamp_ns`` (N,) sorted,
-    a jump whose flight lasts ``flight_s`` (the suit's): the first run of frames ``min_rise_m`` above the median
-    height; the free-fall parabola fitted to the frames in the air, those within half the flight (less
-    ``flight_margin_s``) of the apex, found from the highest frame on (None: no jump, or fewer than two frames
-    in the air)."""
+def lidar_apex(stamp_ns: np.ndarray, height_m: np.ndarray, flight_s: float, config: JumpSyncConfig | None = None,
+               near_ns: float | None = None) -> float | None:
+    """The apex time (ns) of a jump in the sensor's height trajectory (N,) at ``stamp_ns`` (N,) sorted, a jump
+    whose flight lasts ``flight_s`` (the suit's): of the runs of frames ``min_rise_m`` above the median height,
+    the first, or the one whose highest frame is nearest ``near_ns``; the free-fall parabola fitted to the
+    frames in the air, those within half the flight (less ``flight_margin_s``) of the apex, found from the
+    highest frame on (None: no jump, or fewer than two frames in the air)."""
     c = config or JumpSyncConfig()
     t = np.asarray(stamp_ns, dtype=np.int64)
     z = np.asarray(height_m, dtype=np.float64)
     up = z > np.median(z) + c.min_rise_m if z.size else np.zeros(0, dtype=bool)
-    if not up.any():
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], up.astype(np.int8), [0]])))
+    runs = edges.reshape(-1, 2)  # [first, end) of each run above
+    if not runs.size:
         return None
-    first = int(np.argmax(up))
-    last = first + int(np.argmin(np.append(up[first:], False))) - 1
-    top = first + int(np.argmax(z[first : last + 1]))
+    tops = np.array([a + int(np.argmax(z[a:b])) for a, b in runs])
+    top = int(tops[0] if near_ns is None else tops[np.argmin(np.abs(t[tops] - near_ns))])
     s = (t - t[top]) * 1e-9  # seconds from the highest frame
     apex, reach = 0.0, max(0.5 * flight_s - c.flight_margin_s, 0.0)
     for _ in range(3):  # the frames in the air depend on the apex
@@ -116,6 +118,7 @@ class JumpSync:
         self._suit: deque[tuple[int, float]] = deque()
         self._lidar: deque[tuple[int, float]] = deque()
         self.suit_apex_ns: float | None = None
+        self._landed_ns: int | None = None  # the suit's force last came back above free fall here
         self.flight_s = 0.0  # of the jump the suit saw
         self.offset_ns: int | None = None
         #: the flights (s) of the jumps the suit saw but the LiDAR could not fit (too short for its frame rate)
@@ -138,9 +141,12 @@ class JumpSync:
         if self.offset_ns is not None:
             return
         norm = float(np.linalg.norm(specific_force))
-        landed = bool(self._suit) and self._suit[-1][1] < self.config.free_fall * GRAVITY <= norm
+        if self._suit and self._suit[-1][1] < self.config.free_fall * GRAVITY <= norm:
+            self._landed_ns = stamp_ns  # a flight may have ended: look once the smoothing has passed it
         _append(self._suit, stamp_ns, norm, self.config.buffer_s)
-        if self.suit_apex_ns is None and landed:  # a flight just ended: was it the jump?
+        if (self.suit_apex_ns is None and self._landed_ns is not None
+                and stamp_ns - self._landed_ns >= self.config.smooth_s * 1e9):
+            self._landed_ns = None
             t, force = np.array([s[0] for s in self._suit]), np.array([s[1] for s in self._suit])
             found = suit_apex(t, force, self.config)
             if found is not None:
@@ -163,7 +169,8 @@ class JumpSync:
             return
         t = np.array([s[0] for s in self._lidar])
         window = np.abs(t - self.suit_apex_ns) <= reach
-        apex = lidar_apex(t[window], np.array([s[1] for s in self._lidar])[window], self.flight_s, self.config)
+        apex = lidar_apex(t[window], np.array([s[1] for s in self._lidar])[window], self.flight_s, self.config,
+                          near_ns=self.suit_apex_ns)
         if apex is not None:
             self.offset_ns = int(round(self.suit_apex_ns - apex))
         else:  # look for the next jump, after this one's landing

@@ -45,8 +45,8 @@ class LatencyConfig:
     """Where limbs are looked for, the latencies considered, and when an estimate is taken."""
 
     enabled: bool = True
-    low_ns: int = -60_000_000  # latencies considered (a configured latency too large shows as negative)
-    high_ns: int = 200_000_000
+    low_ns: int = -40_000_000  # latencies whose costs are kept: a minimum must lie contrast_ns inside them, so
+    high_ns: int = 240_000_000  # 0-200 ms can be estimated (an estimate below 0 is taken as 0)
     step_ns: int = 4_000_000
     window: int = 300  # frames whose costs are summed, per sensor (30 s at 10 Hz)
     min_frames: int = 60  # frames observed before the first estimate
@@ -66,7 +66,7 @@ class LatencyConfig:
 
     def __post_init__(self) -> None:
         if not (self.low_ns < self.high_ns and self.step_ns > 0 and self.window >= self.min_frames >= 1
-                and self.every >= 1 and self.contrast_ns > 0 and self.history >= 1):
+                and self.every >= 1 and self.contrast_ns >= self.step_ns and self.history >= 1):
             raise ValueError(f"invalid {self}")
 
     @property
@@ -151,9 +151,10 @@ BoneAxisAt = Callable[[str, np.ndarray], np.ndarray]
 class LatencyEstimator:
     """Each sensor's latency from frames of limb axes (:meth:`observe`) and its DOT's bone directions.
 
-    A frame observed at pose time ``t`` is scored once the DOT data reaches
-    ``t + high_ns`` (at :meth:`update` with a later frame's pose time), so the
-    estimate depends on the data alone, not on when frames are processed.
+    A frame observed at pose time ``t`` is scored at :meth:`update` with the
+    pose time of a later frame whose DOT data is complete, ``t + high_ns`` or
+    later: the latencies taken off being never negative, the data it needs is
+    there, live or from a bag, and the estimate depends on the data alone.
     """
 
     def __init__(self, sensors: Mapping[str, str] = LIMB_SENSORS, config: LatencyConfig | None = None) -> None:
@@ -219,4 +220,4 @@ class LatencyEstimator:
             return None
         curvature = cost[k - 1] - 2.0 * cost[k] + cost[k + 1]
         shift = 0.5 * (cost[k - 1] - cost[k + 1]) / curvature if curvature > 0.0 else 0.0
-        return int(round(self._grid[k] + shift * c.step_ns))
+        return max(int(round(self._grid[k] + shift * c.step_ns)), 0)  # a DOT is never stamped before measuring

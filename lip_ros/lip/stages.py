@@ -23,6 +23,7 @@ sees the level world it was trained on.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import itertools
 import time
@@ -147,7 +148,7 @@ class ImuStage:
         self.calibration_count = 0
         self._detector: CalibrationDetector | None = None
         # kept for the calibration, not yet shown to the detector (bounded like the detector's own buffers)
-        self._calibration_samples: deque[tuple[str, int, ImuSampleLike]] = deque()  # (name, measured_ns, sample)
+        self._calibration_samples: deque[tuple[str, ImuSampleLike]] = deque()  # (name, sample)
         self._pending: deque[_Waiting] = deque()
         if calibration is None:
             self.start_calibration()
@@ -174,7 +175,7 @@ class ImuStage:
             if est.estimate_ns[name] is not None:
                 return f"{ms} (estimated)"
             if est.frames[name] < est.config.min_frames:
-                return f"{ms} (not estimated: limb seen in {est.frames[name]} of {est.config.min_frames} frames)"
+                return f"{ms} (not estimated: {est.frames[name]} of {est.config.min_frames} frames scored)"
             return f"{ms} (not estimated: the limb has not moved enough)"
 
         return ", ".join(map(one, IMU_NAMES))
@@ -240,10 +241,9 @@ class ImuStage:
         older than the detector's horizon are dropped (without performer frames nothing else would drop them)."""
         if reason is None and self._detector is not None:
             samples = self._calibration_samples
-            measured_ns = self.sync.measured_ns(name, int(sample.stamp_ns))
-            samples.append((name, measured_ns, sample))
-            oldest_ns = measured_ns - int(self._detector.horizon_s * 1e9)
-            while samples[0][1] < oldest_ns:
+            samples.append((name, sample))
+            oldest_ns = self.sync.measured_ns(name, int(sample.stamp_ns)) - int(self._detector.horizon_s * 1e9)
+            while self.sync.measured_ns(samples[0][0], int(samples[0][1].stamp_ns)) < oldest_ns:
                 samples.popleft()
         return reason
 
@@ -309,11 +309,12 @@ class ImuStage:
     def _try_calibrate(self, t_ns: int) -> None:
         """Show the detector the IMU samples measured up to ``t_ns`` (stamps less latencies) and try to calibrate."""
         later = deque(maxlen=self._calibration_samples.maxlen)
-        for name, measured_ns, sample in self._calibration_samples:
+        for name, sample in self._calibration_samples:
+            measured_ns = self.sync.measured_ns(name, int(sample.stamp_ns))  # with the latency known now
             if measured_ns <= t_ns:
                 self._detector.add_imu(name, measured_ns, sample.quat, sample.gyro, sample.accel)
             else:
-                later.append((name, measured_ns, sample))
+                later.append((name, sample))
         self._calibration_samples = later
         cal = self._detector.update()
         if cal is not None:
@@ -348,22 +349,24 @@ class ImuStage:
                              seconds=time.perf_counter() - start, tag=w.tag)
         if self._detector is not None:
             self._try_calibrate(t)
-        if self.latency is not None and w.points is not None:
+        out = self._bones(w, t)
+        if self.latency is not None and w.points is not None:  # after this frame's bones: it used the data as is
             self._estimate_latency(t, w.points if self.level is None else w.points @ self.level)
+        return dataclasses.replace(out, seconds=time.perf_counter() - start)
+
+    def _bones(self, w: _Waiting, t: int) -> BoneFrame:
+        """The calibrated bones of a frame at its pose time ``t``, or why not."""
         if self.calibration is None:
-            return BoneFrame(w.frame_stamp_ns, t, Outcome.CALIBRATING, self._detector.status, w.points,
-                             seconds=time.perf_counter() - start, tag=w.tag)
+            return BoneFrame(w.frame_stamp_ns, t, Outcome.CALIBRATING, self._detector.status, w.points, tag=w.tag)
         synced = self.sync.query(t)
         if synced.frame_status == FrameStatus.SKIP:
             return BoneFrame(w.frame_stamp_ns, t, Outcome.SKIPPED, f"IMU: {synced.reason}", w.points, synced,
-                             seconds=time.perf_counter() - start, tag=w.tag)
+                             tag=w.tag)
         rot, acc = zip(*(self.calibration.apply(n, synced.quat[i], synced.accel[i]) for i, n in enumerate(IMU_NAMES)))
         rot, acc = np.stack(rot), np.stack(acc)  # in P, the calibration's frame
         if self.level is not None:
             rot, acc = self.level @ rot, acc @ self.level.T
-        return BoneFrame(w.frame_stamp_ns, t, Outcome.POSE, synced.reason, w.points, synced, rot, acc,
-                         time.perf_counter() - start, w.tag)
-
+        return BoneFrame(w.frame_stamp_ns, t, Outcome.POSE, synced.reason, w.points, synced, rot, acc, tag=w.tag)
 
     def _estimate_latency(self, t_ns: int, points: np.ndarray) -> None:
         """Once calibrated, score the frames up to ``t_ns`` (those seen while calibrating too, as far as the DOT

@@ -166,8 +166,8 @@ def plot_terrain(terrain: Terrain, out_png: str | Path, resolution_m: float = 0.
     top = 50.0
     dist, tri = MeshRaycaster(terrain.triangles()).cast(np.stack([x.ravel(), y.ravel(), np.full(x.size, top)], 1),
                                                         np.array([0.0, 0.0, -1.0]))
-    height = (top - dist).reshape(x.shape)
-    obstacle = ~terrain.blocks.walkable[tri // 12].reshape(x.shape)
+    height = np.where(tri >= 0, top - dist, np.nan).reshape(x.shape)  # nothing hit: off the site
+    obstacle = ((tri >= 0) & ~terrain.blocks.walkable[np.maximum(tri, 0) // 12]).reshape(x.shape)
     lay = terrain.layout
     fig, axes = plt.subplots(1, 2, figsize=(15, 5.5), gridspec_kw={"width_ratios": [1.6, 1]})
     image = axes[0].imshow(np.ma.masked_where(obstacle, height), origin="lower", extent=(-sx, sx, -sy, sy),
@@ -176,7 +176,7 @@ def plot_terrain(terrain: Terrain, out_png: str | Path, resolution_m: float = 0.
                    vmin=0, vmax=2)
     fig.colorbar(image, ax=axes[0], label="surface height (m)")
     axes[0].set(xlabel="x (m)", ylabel="y (m)", title="site from above (grey: obstacles)")
-    for name, band, run in (("stairs", lay["stair_y_m"], lay["risers"] * lay["tread_m"]),
+    for name, band, run in (("stairs", lay["stair_y_m"], (lay["risers"] - 1) * lay["tread_m"]),
                             ("ramp", lay["ramp_y_m"], lay["ramp_run_m"])):
         px = np.linspace(lay["terrace_x_m"] - run - 2.0, lay["terrace_x_m"] + 2.0, 400)
         pz = terrain.surface_height(np.stack([px, np.full(px.size, np.mean(band))], 1))

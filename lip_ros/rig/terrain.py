@@ -3,9 +3,11 @@
 A :class:`Terrain` is a set of solid oriented boxes (:class:`Blocks`) in the
 world frame W (z up, the open ground at z = 0): walkable ones (the ground,
 stair steps, ramps, a raised terrace) and obstacles (walls with openings,
-pillars, crates, a roofed room). Every walkable block is solid down to the
-ground, so the scene surface under a point is the highest walkable top face
-there (:meth:`Terrain.surface_height`, the ground truth of foot contact).
+pillars, crates, a roofed room). Walkable blocks stand on the ground (the
+steps and the terrace solid down to it, the ramp a slab leaning on the
+terrace, open underneath towards its high end), so the scene surface under a
+point is the highest walkable top face there (:meth:`Terrain.surface_height`,
+the ground truth of foot contact).
 :meth:`Terrain.random` lays out a site of 60 x 40 m from a seed: a terrace
 reached by a stair flight of 10-16 risers and by a ramp of 5-12 deg, a
 roofed room with a door, walls with doorways, pillars and crates, each

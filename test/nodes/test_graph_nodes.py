@@ -276,5 +276,5 @@ def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_no
     assert statuses["calibration_node: frames"].values["DOT heading reset"] == "done: 4 DOTs reset"
     assert statuses["calibration_node: frames"].values["DOT headings"] == "unknown"  # nothing calibrated
     assert (statuses["calibration_node: frames"].values[DOT_LATENCY_VALUE]
-            == ", ".join(f"{n} {ms} (not estimated: limb seen in 0 of 60 frames)"
+            == ", ".join(f"{n} {ms} (not estimated: 0 of 60 frames scored)"
                          for n, ms in zip(IMU_NAMES, (30, 40, 50, 61))))

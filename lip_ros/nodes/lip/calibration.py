@@ -121,7 +121,7 @@ class CalibrationNode(GraphNode):
         except (OSError, ValueError, KeyError, CalibrationError) as exc:
             raise ParameterError(f"cannot load calibration_file {file}: {exc}") from exc
         self._latency = LatencyWindow()
-        self._estimated: dict[str, int | None] = {}  # the latency estimates last logged
+        self._estimated: dict[str, int | None] = dict.fromkeys(IMU_NAMES)  # the latency estimates last logged
         self._bone_pubs = [self.create_publisher(Imu, topic, BETWEEN_NODES) for topic in p["bone_topics"]]
         self._state_pub = self.create_publisher(String, p["calibration_topic"], LATCHED)
         self._published_state: tuple[int, bool] | None = None
