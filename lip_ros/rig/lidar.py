@@ -312,11 +312,17 @@ class OusterModel:
         surface: SurfaceCaster,
         poses: SensorPoses,
         rng: np.random.Generator,
+        actors: Sequence[Actor] = (),
+        start_ns: int = 0,
         reflectivity: float = 0.5,
+        block: int = 32,
     ) -> Frame:
         """Simulate the frame whose column 0 fires at ``stamp_ns`` from a moving sensor: column j cast from
-        ``poses(stamp_ns + column_t_ns[j])`` against ``surface`` (of uniform ``reflectivity``), its points in L at
-        that pose (the sensor's own ``rotation`` and ``position`` are not used)."""
+        ``poses(stamp_ns + column_t_ns[j])`` against ``surface`` (of uniform ``reflectivity``) and the
+        ``actors`` (the performer who carries the sensor among them: their body blocks and returns rays), its
+        points in L at that pose (the sensor's own ``rotation`` and ``position`` are not used). An actor is
+        posed once per ``block`` columns, at the block's middle, and cast from the sensor's position then
+        (32 columns of a 10 Hz sweep: 3 ms)."""
         rot, pos = poses(stamp_ns + self.column_t_ns)
         dirs = np.einsum("wab,hwb->hwa", rot, self.directions)  # (H, W, 3) in the scene
         origins = np.broadcast_to(pos[None], dirs.shape)
@@ -324,10 +330,26 @@ class OusterModel:
         hit = element >= 0
         cos = np.zeros(dist.shape)
         cos[hit] = np.abs(np.einsum("na,na->n", surface.normals[element[hit]], dirs.reshape(-1, 3)[hit]))
+        best, cos = dist.reshape(self.shape), cos.reshape(self.shape)
+        refl = np.where(hit, reflectivity, 0.0).reshape(self.shape)
         labels = np.full(self.shape, -1, dtype=np.int16)
-        points = self._measure(dist.reshape(self.shape), cos.reshape(self.shape),
-                               np.where(hit, reflectivity, 0.0).reshape(self.shape), labels, rng)
-        return Frame(points, labels, int(stamp_ns), np.zeros(0, dtype=np.int64), [])
+        stamps, actor_poses = [], []
+        for k, actor in enumerate(actors):
+            for lo in range(0, self.columns, block):
+                cols = np.arange(lo, min(lo + block, self.columns))
+                mid = cols[len(cols) // 2]
+                t_ns = stamp_ns + int(self.column_t_ns[mid])
+                glob, joints = actor.pose_at((t_ns - start_ns) * 1e-9)
+                if lo == 0:
+                    stamps.append(t_ns)
+                    actor_poses.append((glob, joints))
+                r, c, rho = (x.reshape(self.beams, len(cols)) for x in
+                             actor.body.raycast(pos[mid], dirs[:, cols].reshape(-1, 3), glob, joints))
+                nearer = r < best[:, cols]
+                for image, value in ((best, r), (cos, c), (refl, rho), (labels, k)):
+                    image[:, cols] = np.where(nearer, value, image[:, cols])
+        points = self._measure(best, cos, refl, labels, rng)
+        return Frame(points, labels, int(stamp_ns), np.array(stamps, dtype=np.int64), actor_poses)
 
     def _measure(
         self, true_range: np.ndarray, cos: np.ndarray, refl: np.ndarray, labels: np.ndarray, rng: np.random.Generator

@@ -7,9 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lip_ros.core.body import BodyModel
 from lip_ros.core.rotations import rot_x, rot_z
-from lip_ros.rig.lidar import OusterModel
+from lip_ros.rig.hip_lidar import HipMount
+from lip_ros.rig.lidar import Actor, OusterModel
 from lip_ros.rig.mesh_raycast import MeshRaycaster
+from lip_ros.rig.motion import make_motion
 from lip_ros.rig.terrain import SITE_HALF_M, Terrain
 from lip_ros.tools.rig import main as lip_rig
 
@@ -138,3 +141,31 @@ def test_a_moving_sensor_sees_each_column_from_its_own_pose():
     assert np.percentile(err, 95) < 0.02  # the rest: the feet of crates, walls and pillars, below 0.3 m too
     late = (np.broadcast_to(model.column_t_ns, model.shape)[ground] > 0.08e9)
     assert np.median(err_unskewed[late]) > 5.0 * np.median(err[late])
+
+
+def test_a_hip_worn_lidar_follows_the_pelvis_and_its_wearer_blocks_it():
+    """An OS1-64 on the hip of a performer walking on the site: the sensor is where the mount puts it on the
+    pelvis; the performer's own body blocks rays (never lengthens one), and what it returns is labelled theirs."""
+    terrain = Terrain.random(3)
+    motion = make_motion("walk", 12.0, 2, np.array([-18.0, -3.0, 0.0]), 0.0, area_radius=2.0, calibration=False)
+    mount = HipMount()
+    poses = mount.poses(motion, START_NS)
+    t_ns = START_NS + np.array([5_000_000_000, 5_050_000_000])
+    rot, pos = poses(t_ns)
+    body = motion.sample((t_ns - START_NS) * 1e-9)
+    np.testing.assert_allclose(pos, body.root_pos + np.einsum("nab,b->na", body.local_rot[:, 0], mount.lever_m))
+    np.testing.assert_allclose(rot, body.local_rot[:, 0] @ mount.R_M_L)
+    model = OusterModel.os1_64(columns=1024, rate_hz=10.0, dropout_prob=0.0, range_noise_std=0.0,
+                               range_noise_per_m=0.0)
+    caster = MeshRaycaster(terrain.triangles())
+    actor = Actor(BodyModel(motion.skeleton), motion)
+    worn = model.scan_moving(int(t_ns[0]), caster, poses, np.random.default_rng(0), [actor], START_NS)
+    bare = model.scan_moving(int(t_ns[0]), caster, poses, np.random.default_rng(0))
+    r_worn, r_bare = worn.points["range"].astype(float), bare.points["range"].astype(float)
+    r_worn[r_worn == 0], r_bare[r_bare == 0] = np.inf, np.inf
+    changed = r_worn != r_bare
+    assert changed.sum() > 50  # the wearer's body is in the field of view
+    # each changed ray returns from the body, nearer, or nothing (the body closer than the minimum range)
+    assert np.all((worn.labels[changed] == 0) & (r_worn[changed] < r_bare[changed]) | np.isinf(r_worn[changed]))
+    assert np.all(worn.labels[~changed] == -1)  # nothing else is the wearer's
+    assert worn.actor_stamps_ns[0] == t_ns[0] + model.column_t_ns[16]  # the first block of 32 columns, posed mid-way

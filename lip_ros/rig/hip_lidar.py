@@ -1,0 +1,49 @@
+"""The HSC4D rig's LiDAR, worn on the hip: its pose follows the pelvis of the performer who carries it.
+
+A :class:`HipMount` places the sensor rigidly in the pelvis frame (the
+contract's model frame M at the pelvis: x the body's left, y up, z forward):
+by default 0.15 m to the right of the pelvis and 0.1 m behind its centre
+(outside the hip capsules), looking forward and tilted up 30 deg, as the
+HSC4D rig's. :meth:`HipMount.poses` turns a performer's motion into the
+sensor poses of :meth:`lip_ros.rig.lidar.OusterModel.scan_moving`, which casts
+each column from the pose at its time and lets the performer's own body
+block and return rays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lip_ros.core.rotations import rot_y
+from lip_ros.rig.lidar import SensorPoses
+from lip_ros.rig.trajectory import Trajectory
+
+__all__ = ["HipMount", "R_M_L_FORWARD"]
+
+#: The LiDAR frame L (x forward, y left, z up) in the model frame M (x left, y up, z forward), level.
+R_M_L_FORWARD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+
+
+@dataclass(frozen=True)
+class HipMount:
+    """The LiDAR's pose in the pelvis frame: lever arm (m, in M) and tilt up about L's y axis (deg)."""
+
+    lever_m: np.ndarray = field(default_factory=lambda: np.array([-0.15, 0.0, -0.1]))
+    tilt_up_deg: float = 30.0
+
+    @property
+    def R_M_L(self) -> np.ndarray:
+        """(3, 3) the sensor frame L in the pelvis frame M."""
+        return R_M_L_FORWARD @ rot_y(-np.radians(self.tilt_up_deg))
+
+    def poses(self, motion: Trajectory, start_ns: int = 0) -> SensorPoses:
+        """The sensor's poses (R_W_L, p_W_L) at stamps (ns; ``start_ns`` is the motion's time 0) of ``motion``."""
+
+        def at(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            body = motion.sample((np.asarray(t_ns) - start_ns) * 1e-9)
+            R_W_M = body.local_rot[:, 0]
+            return R_W_M @ self.R_M_L, body.root_pos + R_W_M @ self.lever_m
+
+        return at
