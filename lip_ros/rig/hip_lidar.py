@@ -16,14 +16,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lip_ros.core.frames import R_L_M_FACING_X
 from lip_ros.core.rotations import rot_y
 from lip_ros.rig.lidar import SensorPoses
 from lip_ros.rig.trajectory import Trajectory
 
-__all__ = ["HipMount", "R_M_L_FORWARD"]
-
-#: The LiDAR frame L (x forward, y left, z up) in the model frame M (x left, y up, z forward), level.
-R_M_L_FORWARD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+__all__ = ["HipMount"]
 
 
 @dataclass(frozen=True)
@@ -35,8 +33,8 @@ class HipMount:
 
     @property
     def R_M_L(self) -> np.ndarray:
-        """(3, 3) the sensor frame L in the pelvis frame M."""
-        return R_M_L_FORWARD @ rot_y(-np.radians(self.tilt_up_deg))
+        """(3, 3) the sensor frame L in the pelvis frame M: looking where the body faces, tilted up."""
+        return R_L_M_FACING_X.T @ rot_y(-np.radians(self.tilt_up_deg))
 
     def poses(self, motion: Trajectory, start_ns: int = 0) -> SensorPoses:
         """The sensor's poses (R_W_L, p_W_L) at stamps (ns; ``start_ns`` is the motion's time 0) of ``motion``."""
