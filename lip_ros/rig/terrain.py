@@ -23,10 +23,15 @@ import numpy as np
 
 from lip_ros.core.rotations import rot_y, rot_z
 
-__all__ = ["Blocks", "Terrain", "SITE_HALF_M"]
+__all__ = ["Blocks", "Terrain", "SITE_HALF_M", "ROUTE_RADIUS_M"]
 
 #: Half the extent of a random site along x and y (metres): 60 x 40 m.
 SITE_HALF_M = (30.0, 20.0)
+#: A ramp runs at most this far (m): steeper than drawn if the terrace is high (room for the route round it).
+_MAX_RAMP_RUN_M = 25.0
+#: The route's turning radius (m) and the straight it keeps before and after a stair flight or a ramp.
+ROUTE_RADIUS_M = 1.2
+_ROUTE_RUN_IN_M = 1.5
 #: The ground slab's thickness below z = 0.
 _GROUND_DEPTH_M = 1.0
 # The 12 triangles of a box, as corner indices (corner k has sign bits x = k & 4, y = k & 2, z = k & 1).
@@ -81,6 +86,27 @@ class Terrain:
         corners = b.centre[:, None] + np.einsum("nij,nkj->nki", b.rotation, _CORNER_SIGNS * b.half[:, None])
         return corners[:, _BOX_FACES].reshape(-1, 3, 3)
 
+    def route(self) -> tuple[np.ndarray, np.ndarray]:
+        """A closed walk through a random site: start (2,) and corners (K, 2) of the polygon it rounds.
+
+        From the start on open ground west of the stair flight: east up the
+        stairs, north across the terrace, west down the ramp, a U-turn south
+        into the lane between the ramp and the stairs, east along it and back to
+        the start; straight for at least ``_ROUTE_RUN_IN_M`` before and after the
+        stairs and the ramp, and turns of ``ROUTE_RADIUS_M`` elsewhere.
+        """
+        lay = self.layout
+        tx, stair, ramp = lay["terrace_x_m"], np.mean(lay["stair_y_m"]), np.mean(lay["ramp_y_m"])
+        stair_foot = tx - (lay["risers"] - 1) * lay["tread_m"]
+        ramp_foot = tx - lay["ramp_run_m"]
+        lane = 0.5 * (lay["ramp_y_m"][0] + lay["stair_y_m"][1])
+        back = stair_foot - _ROUTE_RUN_IN_M - 2.0 * ROUTE_RADIUS_M
+        turn = ramp_foot - _ROUTE_RUN_IN_M - ROUTE_RADIUS_M
+        on_terrace = tx + _ROUTE_RUN_IN_M + ROUTE_RADIUS_M
+        corners = np.array([[on_terrace, stair], [on_terrace, ramp], [turn, ramp], [turn, lane], [back, lane],
+                            [back, stair]])
+        return np.array([back + ROUTE_RADIUS_M + 0.5, stair]), corners
+
     def surface_height(self, xy: np.ndarray) -> np.ndarray:
         """(Q,) the height of the highest walkable top face under each point (Q, 2); NaN off the site."""
         xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
@@ -107,7 +133,7 @@ class Terrain:
         riser = float(rng.uniform(0.15, 0.18))
         tread = float(rng.uniform(0.28, 0.32))
         height = risers * riser
-        ramp_deg = float(rng.uniform(5.0, 12.0))
+        ramp_deg = max(float(rng.uniform(5.0, 12.0)), float(np.degrees(np.arctan(height / _MAX_RAMP_RUN_M))))
         terrace_x = float(rng.uniform(5.0, 10.0))  # its west face; it reaches the site's east edge
         terrace_y = (-sy, float(rng.uniform(-4.0, -1.0)))
         parts.append(Blocks.axis_aligned([terrace_x, terrace_y[0], 0.0], [sx, terrace_y[1], height], walkable=True))
@@ -171,8 +197,8 @@ def _clutter(rng: np.random.Generator) -> Blocks:
     pillars = Blocks.axis_aligned(np.stack([px - pr, py - pr, np.zeros(n)], 1), np.stack([px + pr, py + pr, ph], 1),
                                   walkable=False)
     m = 8
-    cx = np.linspace(-27.0, -4.0, m) + rng.uniform(-0.5, 0.5, m)
-    cy = rng.uniform(-19.0, -12.0, m)
+    cx = np.linspace(-27.0, -10.0, m) + rng.uniform(-0.5, 0.5, m)
+    cy = rng.uniform(-19.0, -15.0, m)
     half = rng.uniform(0.3, 0.8, (m, 3))
     crates = Blocks(np.stack([cx, cy, half[:, 2]], 1), half, rng.uniform(0.0, np.pi, m), np.zeros(m),
                     np.zeros(m, dtype=bool))

@@ -17,9 +17,9 @@ import numpy as np
 from lip_ros.core.frames import GRAVITY
 from lip_ros.rig.motion.clips import Anchor, Area, Choreo, PostureClip, Style
 from lip_ros.rig.motion.posture import BodyRig
-from lip_ros.rig.motion.primitives import rotate_2d, smoothstep_inverse, wrap_angle
+from lip_ros.rig.motion.primitives import EasedKeys, rotate_2d, smoothstep_inverse, wrap_angle
 
-__all__ = ["build_squat", "build_jump", "build_arms", "build_martial", "build_dance", "build_turn"]
+__all__ = ["build_squat", "build_jump", "build_sync_jump", "build_arms", "build_martial", "build_dance", "build_turn"]
 
 
 def build_squat(
@@ -160,6 +160,50 @@ def build_jump(
                 c.step(side, t_off, t_land, c.stance_foot(side, land, new_yaw), new_yaw, lift=0.0)
         uv, yaw = land, new_yaw
         t = t_end + u(0.3, 0.9) * tp
+    return c.build()
+
+
+def build_sync_jump(rig: BodyRig, style: Style, rng: np.random.Generator, anchor: Anchor) -> PostureClip:
+    """One vertical jump in place whose flight is ballistic (the HSC4D capture's sync event): a crouch, a push
+    of constant upward acceleration to take-off, free fall of the pelvis (a parabola of gravity's curvature)
+    rising 12-30 cm, a landing braked at constant deceleration, back to standing; the clip lasts as long as it
+    needs (about 3 s)."""
+    s, tp, u = rig.scale, style.tempo, rng.uniform
+    rise, crouch, absorb = u(0.12, 0.3) * s, u(0.15, 0.25) * s, u(0.1, 0.18) * s
+    p_off, p_land = u(0.5, 0.7), u(0.15, 0.3)
+    z_ext = rig.pelvis_height_for(np.radians(8.0), p_off) - rig.neutral_height  # feet leave the ground here
+    v0 = float(np.sqrt(2.0 * GRAVITY * rise))
+    t1 = u(0.4, 0.6)  # bottom of the crouch, reached eased from standing
+    t_off = t1 + 2.0 * (z_ext + crouch) / v0  # pushed at constant acceleration up to take-off
+    t_land = t_off + 2.0 * v0 / GRAVITY
+    t_low = t_land + 2.0 * (z_ext + absorb) / v0  # braked at constant deceleration to the bottom
+    t_end = t_low + u(0.5, 0.7) * tp
+    c = Choreo("sync_jump", rig, style, anchor, t_end + u(0.4, 0.6))
+    c.follow = rig.pelvis_height_for(np.radians(8.0))
+    arms = ("l_f", "r_f", "l_elbow", "r_elbow")
+    c.key(t1, z=-crouch, pitch=u(0.25, 0.4), spine_flex=0.2, head_flex=-0.2, l_f=-0.4, r_f=-0.4, l_elbow=0.3,
+          r_elbow=0.3)
+    c.key(t_land, pitch=0.05, spine_flex=0.0, head_flex=0.05, l_f=u(0.8, 1.2), r_f=u(0.8, 1.2), l_elbow=0.4,
+          r_elbow=0.4)
+    c.key(t_low, z=-absorb, pitch=u(0.2, 0.35), spine_flex=0.15, head_flex=-0.1, l_f=0.5, r_f=0.5, l_elbow=0.5,
+          r_elbow=0.5)
+    c.relax(t_end, "z", "pitch", "spine_flex", "head_flex", *arms)
+    for name in ("l_foot_pitch", "r_foot_pitch"):
+        c.key(t1, **{name: 0.0})
+        c.key(t_off, **{name: p_off})
+        c.key(t_land, **{name: p_land})
+        c.key(t_low, **{name: 0.0})
+    eased = EasedKeys(np.array([t1, t_low]), np.array([-crouch, -absorb]))  # what the z keys give in between
+
+    def flight(t: np.ndarray) -> np.ndarray:
+        """The pelvis height in [t1, t_low] less the eased keys' (zero outside): piecewise parabolic, C1."""
+        push = -crouch + (z_ext + crouch) * ((t - t1) / (t_off - t1)) ** 2
+        air = z_ext + v0 * (t - t_off) - 0.5 * GRAVITY * (t - t_off) ** 2
+        brake = -absorb + (z_ext + absorb) * ((t_low - t) / (t_low - t_land)) ** 2
+        z = np.where(t < t_off, push, np.where(t <= t_land, air, brake))
+        return np.where((t > t1) & (t < t_low), z - eased(t), 0.0)
+
+    c.add("z", flight)
     return c.build()
 
 

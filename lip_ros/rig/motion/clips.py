@@ -12,6 +12,7 @@ the activities in :mod:`lip_ros.rig.motion.acts`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
@@ -97,11 +98,12 @@ class Clip(Protocol):
 
 def plan_feet(
     anchor: Anchor, plans: list[FootPlan], tau: np.ndarray
-) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Footprint xy (world), yaw, swing height, pitch and airborne weight of both feet, (T, 2[, 2])."""
-    xy, yaw, height, pitch, airborne = zip(*(plan.evaluate(tau) for plan in plans), strict=False)
-    stack = [np.stack(a, 1) for a in (yaw, height, pitch, airborne)]
-    return [anchor.to_world(p) for p in xy], stack[0] + anchor.heading, stack[1], stack[2], stack[3]
+) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Footprint xy (world), yaw, swing height, roll pitch, airborne weight and ground (height, slope) of both
+    feet, (T, 2[, 2])."""
+    xy, yaw, height, pitch, airborne, ground = zip(*(plan.evaluate(tau) for plan in plans), strict=False)
+    stack = [np.stack(a, 1) for a in (yaw, height, pitch, airborne, ground)]
+    return [anchor.to_world(p) for p in xy], stack[0] + anchor.heading, stack[1], stack[2], stack[3], stack[4]
 
 
 @dataclass
@@ -125,7 +127,7 @@ class PostureClip:
     anchor: Anchor
     base: np.ndarray  # (POSTURE_SIZE,) relaxed posture
     keys: dict[str, EasedKeys]  # offsets from the relaxed value
-    oscillators: list[tuple[str, Oscillator]]
+    oscillators: list[tuple[str, Callable[[np.ndarray], np.ndarray]]]  # added to the channels
     plans: list[FootPlan]
     follow: float | None = None  # feet leave the ground when the pelvis rises above this (jumps)
     end: Anchor = field(init=False)
@@ -146,7 +148,7 @@ class PostureClip:
         heading = self.anchor.heading + post[:, YAW]
         pelvis_xy = self.anchor.to_world(post[:, [U, V]])
         pelvis_z = rig.neutral_height + post[:, Z]
-        fxy, fyaw, height, pitch, airborne = plan_feet(self.anchor, self.plans, tau)
+        fxy, fyaw, height, pitch, airborne, _ = plan_feet(self.anchor, self.plans, tau)  # on the flat ground
         ankles, toes = [], []
         for side, prefix in enumerate(("l_", "r_")):
             du, dv, dz = (post[:, CHANNELS[f"{prefix}foot_{a}"][0][0]] for a in "uvz")
@@ -179,7 +181,7 @@ class Choreo:
     def __init__(self, name: str, rig: BodyRig, style: Style, anchor: Anchor, duration: float) -> None:
         self.name, self.rig, self.style, self.anchor, self.duration = name, rig, style, anchor, float(duration)
         self._keys: dict[str, dict[float, float]] = {}
-        self._oscillators: list[tuple[str, Oscillator]] = []
+        self._oscillators: list[tuple[str, Callable[[np.ndarray], np.ndarray]]] = []
         self._plants = [[_Plant(-np.inf, np.inf, rig.neutral_feet[side].copy(), 0.0)] for side in range(2)]
         self.follow: float | None = None
 
@@ -218,6 +220,12 @@ class Choreo:
         for name, amp in amps.items():
             self._oscillators.append((name, Oscillator(amp, freq, t_on, t_off, ramp, phase)))
 
+    def add(self, name: str, curve: Callable[[np.ndarray], np.ndarray]) -> None:
+        """Add ``curve(t)`` (zero outside the clip's own window, smooth) to a channel."""
+        if name not in CHANNELS:
+            raise KeyError(f"unknown posture channel {name!r}")
+        self._oscillators.append((name, curve))
+
     def stance_foot(self, side: int, uv: np.ndarray, yaw: float) -> np.ndarray:
         """Footprint (forward, left) of a foot in stance under a pelvis at ``uv`` facing ``yaw``."""
         return np.asarray(uv, dtype=np.float64) + rotate_2d(self.rig.neutral_feet[side], yaw)
@@ -255,7 +263,7 @@ class Choreo:
             if name not in _PLACEMENT and abs(values[-1]) > 1e-9:
                 raise ValueError(f"{self.name}: channel {name} does not end relaxed")
             keys[name] = EasedKeys(t, values)
-        if any(osc.t_off > self.duration for _, osc in self._oscillators):
+        if any(isinstance(osc, Oscillator) and osc.t_off > self.duration for _, osc in self._oscillators):
             raise ValueError(f"{self.name}: an oscillation outlasts the clip")
         end = np.array([self.value(c, self.duration) for c in ("u", "v")])
         end_yaw = self.value("yaw", self.duration)

@@ -1,16 +1,19 @@
-"""Walking and running on closed loops through the capture area, with start, stop and turns."""
+"""Walking and running on closed loops through the capture area, with start, stop and turns, or along a route
+over terrain (stairs, ramps)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.ndimage import gaussian_filter1d, minimum_filter1d
 
 from lip_ros.core.frames import GRAVITY
 from lip_ros.rig.motion.clips import Anchor, Area, Style, plan_feet
 from lip_ros.rig.motion.posture import BodyRig, Drive, FootPlan, posture
-from lip_ros.rig.motion.primitives import LoopPath, rotate_2d, smoothstep
+from lip_ros.rig.motion.primitives import LoopPath, RoutePath, rotate_2d, smoothstep
 
 __all__ = ["GaitClip"]
 
@@ -109,9 +112,24 @@ class GaitClip:
     laid along the loop (no sliding), roll heel to toe, and swing over; the
     pelvis sways, rotates and bobs, the arms swing against the legs, the body
     leans into turns.
+
+    Given a ``route`` (a :class:`~lip_ros.rig.motion.primitives.RoutePath`
+    starting at the anchor) and the ``surface`` height under ground points, the
+    loop is the route and the walk follows the terrain: each footprint moves
+    along the foot (at most ``_FOOTHOLD_SHIFT``) to the nearest foothold where
+    the sole rests on one plane (a tread, the ground, a ramp), stands at its
+    height and takes its slope; the pelvis rides the ground along the route,
+    smoothed; on a stair flight (steps in the route's profile closer than
+    ``_FLIGHT_GAP`` apart) the body slows to one tread per step.
     """
 
     _DT = 0.01  # s, step of the speed integration
+    _PROFILE_STEP = 0.02  # m, sampling of the ground along the route
+    _STEP_EDGE = 0.03  # m, a rise of the route's ground profile this sharp is a step edge
+    _FLIGHT_GAP = 0.6  # m, step edges closer than this belong to one stair flight
+    _PELVIS_SMOOTH = 0.3  # m, sigma of the ground under the pelvis along the route
+    _FOOTHOLD_SHIFT = 0.15  # m, furthest a footprint moves to find a foothold
+    _MAX_SLOPE = np.radians(15.0)  # a sole tilted more than this is not a foothold
 
     def __init__(
         self,
@@ -120,8 +138,10 @@ class GaitClip:
         rng: np.random.Generator,
         anchor: Anchor,
         duration: float,
-        area: Area,
+        area: Area | None,
         run: bool,
+        route: RoutePath | None = None,
+        surface: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
         self.name, self.duration, self.rig, self.style = ("run" if run else "walk"), float(duration), rig, style
         self.run = run
@@ -131,7 +151,15 @@ class GaitClip:
         self._start = min(1.0 / p.cadence, 0.25 * duration)
         self._stop = duration - self._start
         self._ramp = min(p.ramp, (self._stop - self._start) / 3.0)
-        self.path, self._s = self._plan_path(rng, anchor, area)
+        self.surface = surface
+        self._ground, self._speed_cap = self._profile(route, surface)
+        if route is None:
+            if area is None:
+                raise ValueError("a gait needs an area to loop in, or a route")
+            self.path, self._s = self._plan_path(rng, anchor, area)
+        else:
+            self.path = route
+            self._s = CubicSpline(*self._integrate(route), bc_type="clamped")
         end_xy, end_heading, _ = self.path.at(self._s(np.array([duration])))
         self.end = Anchor(end_xy[0], float(end_heading[0]))
         self._plans = [self._footprints(side) for side in range(2)]
@@ -161,13 +189,39 @@ class GaitClip:
         path = unit.with_length(lo)
         return path, CubicSpline(*self._integrate(path), bc_type="clamped")  # at rest at both ends
 
-    def _integrate(self, path: LoopPath) -> tuple[np.ndarray, np.ndarray]:
+    def _profile(self, route: RoutePath | None, surface: Callable[[np.ndarray], np.ndarray] | None
+                 ) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]:
+        """The ground under the pelvis (smoothed) and the speed limit of stair flights, along the route's arc
+        length (any laps); zero and none without a route on a surface."""
+        if route is None or surface is None:
+            return (lambda s: np.zeros(np.shape(s))), (lambda s: np.full(np.shape(s), np.inf))
+        n = int(np.ceil(route.length / self._PROFILE_STEP))
+        grid = np.arange(n) * (route.length / n)
+        z = surface(route.at(grid)[0])
+        step = grid[1] - grid[0]
+        under = gaussian_filter1d(z, self._PELVIS_SMOOTH / step, mode="wrap")
+        edges = grid[np.flatnonzero(np.abs(np.diff(z, append=z[:1])) > self._STEP_EDGE)]
+        cap = np.full(n, np.inf)
+        gaps = np.diff(edges)
+        for k in np.flatnonzero(gaps < self._FLIGHT_GAP):  # between two edges of a flight: one tread per step
+            cap[(grid >= edges[k] - 0.5 * gaps[k]) & (grid <= edges[k + 1] + 0.5 * gaps[k])] = 2.0 * gaps[k]
+        speed = np.minimum(cap * self.p.cadence, self.p.speed)  # stride times cadence
+        widen = int(round(1.0 / step)) | 1  # slow down a metre ahead, smoothly
+        speed = gaussian_filter1d(minimum_filter1d(speed, widen, mode="wrap"), 0.3 / step, mode="wrap")
+
+        def lap(values: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+            return lambda s: np.interp(np.mod(s, route.length), grid, values, period=route.length)
+
+        return lap(under), lap(speed)
+
+    def _integrate(self, path: LoopPath | RoutePath) -> tuple[np.ndarray, np.ndarray]:
         """Arc length over time at the enveloped, curvature-limited speed."""
         p = self.p
         grid = np.linspace(0.0, path.length, 1024)
         kappa = np.abs(path.at(grid)[2])
         turning = np.sqrt(p.lateral_accel / np.maximum(kappa, 1e-6))  # fastest speed for the curve
-        limit = (p.speed**-4 + turning**-4) ** -0.25  # smooth minimum of cruise and turning speed
+        cruise = np.minimum(p.speed, self._speed_cap(grid))
+        limit = (cruise**-4 + turning**-4) ** -0.25  # smooth minimum of cruise and turning speed
         t = np.arange(0.0, self.duration + self._DT, self._DT)
         env = self.envelope(t)
         env_mid = self.envelope(t + 0.5 * self._DT)
@@ -194,6 +248,9 @@ class GaitClip:
         swing_mid = np.clip(0.5 * (end + start + 1.0 / p.cadence), 0.0, self.duration)
         stance_time = p.stance / p.cadence
         start[0], end[-1] = -np.inf, np.inf
+        ground = slope = None
+        if self.surface is not None:
+            xy, ground, slope = self._foothold(side, xy, heading)
         return FootPlan(
             start=start,
             end=end,
@@ -206,7 +263,32 @@ class GaitClip:
             push=p.push * self.envelope(np.clip(end, None, self.duration)),
             push_time=np.full(len(k), 0.5 * stance_time),
             peak=p.peak,
+            ground=ground,
+            slope=slope,
         )
+
+    def _foothold(self, side: int, xy: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Footprints (N, 2) moved along the foot to the nearest place where heel, middle and toe tip stand on
+        one plane no steeper than ``_MAX_SLOPE`` (kept where there is none), the height of that plane under
+        the footprint and its slope pitch (N,)."""
+        rig = self.rig
+        heel, toe = rig.heel[side, 2], rig.ball[side, 2] + 0.05 * rig.scale  # along the foot, from the ankle
+        shifts = np.linspace(-self._FOOTHOLD_SHIFT, self._FOOTHOLD_SHIFT, 31)
+        shifts = shifts[np.argsort(np.abs(shifts), kind="stable")]
+        along = np.stack([np.cos(yaw), np.sin(yaw)], -1)  # (N, 2)
+        at = np.array([heel, 0.5 * (heel + toe), toe])
+        points = xy[:, None, None] + along[:, None, None] * (shifts[None, :, None, None] + at[None, None, :, None])
+        z = self.surface(points.reshape(-1, 2)).reshape(len(xy), len(shifts), 3)
+        rise = z[..., 2] - z[..., 0]
+        flat = (np.abs(z[..., 1] - 0.5 * (z[..., 0] + z[..., 2])) < 0.005) & (
+            np.abs(rise) <= np.tan(self._MAX_SLOPE) * (toe - heel))
+        best = np.where(flat.any(axis=1), np.argmax(flat, axis=1), 0)
+        rows = np.arange(len(xy))
+        moved = xy + along * shifts[best][:, None]
+        rise = rise[rows, best]
+        slope = -np.arctan(rise / (toe - heel))  # toes up (negative pitch) uphill
+        under = z[rows, best, 0] - heel / (toe - heel) * rise  # the plane at the ankle (heel < 0 < toe)
+        return moved, np.nan_to_num(under), slope
 
     def drive(self, tau: np.ndarray) -> Drive:
         """The body at clip times ``tau``."""
@@ -220,7 +302,8 @@ class GaitClip:
         stance = np.cos(2.0 * np.pi * (phase - 0.5 * p.stance))  # +1 at left mid-stance
         normal = np.stack([-np.sin(heading), np.cos(heading)], -1)
         pelvis_xy = xy + (env * p.sway * stance)[:, None] * normal
-        pelvis_z = rig.neutral_height - env * (p.drop + p.bob * np.cos(4.0 * np.pi * (phase - 0.5 * p.stance)))
+        pelvis_z = (rig.neutral_height + self._ground(dist)
+                    - env * (p.drop + p.bob * np.cos(4.0 * np.pi * (phase - 0.5 * p.stance))))
         rest = self.style.rest
         roll = env * p.pelvis_roll * stance
         channels = {
@@ -241,8 +324,9 @@ class GaitClip:
             "r_elbow": env * (p.elbow - rest("r_elbow") + p.elbow_swing * 0.5 * (1.0 + stride)),
         }
         post = posture(channels, n, self._base)
-        fxy, fyaw, height, pitch, airborne = plan_feet(Anchor(np.zeros(2), 0.0), self._plans, tau)
-        ankle = np.stack(
-            [rig.ankle_from_footprint(i, fxy[i], fyaw[:, i], height[:, i], pitch[:, i]) for i in range(2)], 1
-        )
-        return Drive(pelvis_xy, pelvis_z, heading, post, ankle, fyaw, pitch, rig.toe_flat(pitch, height), airborne)
+        fxy, fyaw, height, roll, airborne, ground = plan_feet(Anchor(np.zeros(2), 0.0), self._plans, tau)
+        ankle = np.stack([
+            rig.ankle_from_footprint(i, fxy[i], fyaw[:, i], height[:, i], roll[:, i], ground=ground[:, i])
+            for i in range(2)], 1)
+        pitch = roll + ground[..., 1]
+        return Drive(pelvis_xy, pelvis_z, heading, post, ankle, fyaw, pitch, rig.toe_flat(roll, height), airborne)

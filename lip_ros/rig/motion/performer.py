@@ -29,11 +29,20 @@ from scipy.ndimage import gaussian_filter1d, minimum_filter1d
 from lip_ros.core.frames import R_L_M_FACING_X
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, rot_z
 from lip_ros.core.skeleton import Skeleton, load_skeleton
-from lip_ros.rig.motion.acts import build_arms, build_dance, build_jump, build_martial, build_squat, build_turn
+from lip_ros.rig.motion.acts import (
+    build_arms,
+    build_dance,
+    build_jump,
+    build_martial,
+    build_squat,
+    build_sync_jump,
+    build_turn,
+)
 from lip_ros.rig.motion.clips import Anchor, Area, Clip, Style
 from lip_ros.rig.motion.gait import GaitClip
 from lip_ros.rig.motion.posture import BodyRig
-from lip_ros.rig.motion.primitives import smoothstep, wrap_angle
+from lip_ros.rig.motion.primitives import RoutePath, smoothstep, wrap_angle
+from lip_ros.rig.terrain import ROUTE_RADIUS_M, Terrain
 from lip_ros.rig.trajectory import BodyPose
 
 __all__ = [
@@ -46,6 +55,7 @@ __all__ = [
     "random_scenario",
     "random_motion",
     "calibration_duration",
+    "make_site_motion",
 ]
 
 #: Single activities, each also a scenario.
@@ -322,6 +332,43 @@ def make_motion(
         for k, (name, p) in enumerate(plan)
     ]
     return PerformerMotion(rig.skeleton, scenario, pieces, lidar_height, centre_xy, area.radius)
+
+
+def make_site_motion(
+    terrain: Terrain, duration_s: float, seed: int, body_scale: float | None = None, skeleton: Skeleton | None = None
+) -> PerformerMotion:
+    """A performer who carries the sensors through a site (the HSC4D capture), in the world frame W of
+    ``terrain``: standing still in A-pose at the start of the site's route, one vertical jump in place with a
+    ballistic flight (the sync event), then walking the route over the terrain (stairs, ramp) for the rest
+    of ``duration_s``. Phases: ``a_pose``, ``jump``, ``walk`` (and the transitions between them)."""
+    rng = np.random.default_rng([seed, 0])
+    scale = float(rng.uniform(0.9, 1.1)) if body_scale is None else float(body_scale)
+    rig = BodyRig((skeleton or load_skeleton()).scaled(scale))
+    style = Style.draw(np.random.default_rng([seed, 2]))
+    start, corners = terrain.route()
+    route = RoutePath(start, corners, ROUTE_RADIUS_M)
+    anchor = Anchor(start, float(route.at(np.zeros(1))[1][0]))
+    rng = np.random.default_rng([seed, 1])
+    a_pose = rig.skeleton.pose_local_rotations("a_pose")
+    a_pose[0] = rot_z(anchor.heading) @ R_L_M_FACING_X
+    ground = float(terrain.surface_height(start[None])[0])
+    plan: list[tuple[str, _Piece | _Gap]] = [
+        ("a_pose", _Hold(rng.uniform(2.3, 3.0), np.array([*start, rig.stand_height + ground]), a_pose)),
+        ("to_jump", _Gap(rng.uniform(0.6, 1.0))),
+        ("jump", _Play(build_sync_jump(rig, style, rng, anchor), rig)),
+        ("to_walk", _Gap(rng.uniform(0.3, 0.6))),
+    ]
+    budget = duration_s - sum(p.duration for _, p in plan)
+    if budget < MIN_DURATION["walk"]:
+        raise ValueError(f"a site capture needs duration_s >= {duration_s - budget + MIN_DURATION['walk']:.1f} s")
+    walk = GaitClip(rig, style, np.random.default_rng([seed, 10]), anchor, budget, None, run=False, route=route,
+                    surface=terrain.surface_height)
+    plan.append(("walk", _Play(walk, rig)))
+    pieces = [
+        (name, _Blend(p.duration, plan[k - 1][1].last(), plan[k + 1][1].first()) if isinstance(p, _Gap) else p)
+        for k, (name, p) in enumerate(plan)
+    ]
+    return PerformerMotion(rig.skeleton, "site_walk", pieces, 0.0, start, float(np.inf))
 
 
 def _loop_heading(anchor: Anchor, area: Area) -> float | None:

@@ -122,7 +122,10 @@ class FootPlan:
     touch-down to flat within ``strike_time``, and to ``push`` pitch at lift-off
     within the last ``push_time`` (positive pitch = heel up, rolling over the
     ball; negative = toes up, on the heel). The first plant starts at -inf and
-    the last ends at +inf.
+    the last ends at +inf. On terrain a footprint stands at its ``ground``
+    height, pitched by its ``slope`` (the pitch of a ramp under the foot, signed
+    as the roll's); a swing climbs to a higher footprint early and drops to a
+    lower one late (clearing the step edges), turning to the next slope.
     """
 
     start: np.ndarray  # (N,)
@@ -136,9 +139,14 @@ class FootPlan:
     push_time: np.ndarray  # (N,)
     clearance: np.ndarray  # (N,) plateau height of the swing after each plant
     peak: float = 0.5  # where in the swing the bump is highest (fraction)
+    ground: np.ndarray | None = None  # (N,) height of each footprint's ground (None: all 0)
+    slope: np.ndarray | None = None  # (N,) foot pitch the ground under each footprint asks for (None: all 0)
 
-    def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Footprint xy (T, 2), yaw (T,), swing height (T,), pitch (T,) and airborne weight (T,) at times ``t``.
+    def evaluate(
+        self, t: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Footprint xy (T, 2), yaw (T,), swing height (T,), roll pitch (T,), airborne weight (T,) and the
+        ground the foot is on or over (T, 2): its height under the ankle and its slope pitch, at times ``t``.
 
         The airborne weight is 0 while planted and rises to 1 within the first
         quarter of a swing (falling back within the last quarter); a swing that
@@ -161,7 +169,12 @@ class FootPlan:
         swing = self.push[i] + w * (self.strike[j] - self.push[i])
         lifted = smoothstep((self.lift[i] + self.clearance[i]) / 0.02)
         airborne = smoothstep(4.0 * sigma) * smoothstep(4.0 * (1.0 - sigma)) * lifted
-        return xy, yaw, height, np.where(planted, stance, swing), airborne
+        ground = np.zeros(n) if self.ground is None else self.ground
+        slope = np.zeros(n) if self.slope is None else self.slope
+        climb = np.where(ground[j] > ground[i], smoothstep(4.0 * sigma), smoothstep(4.0 * sigma - 3.0))
+        base = ground[i] + climb * (ground[j] - ground[i])
+        tilt = np.where(planted, slope[i], slope[i] + w * (slope[j] - slope[i]))
+        return xy, yaw, height, np.where(planted, stance, swing), airborne, np.stack([base, tilt], -1)
 
 
 @dataclass
@@ -258,11 +271,14 @@ class BodyRig:
         height: np.ndarray,
         pitch: np.ndarray,
         planar: bool = False,
+        ground: np.ndarray | None = None,
     ) -> np.ndarray:
         """(T, 3) ankle positions of a foot on footprints ``xy`` (T, 2) with ``yaw``, lifted ``height``,
         pitched ``pitch`` about its heel (pitch < 0) or ball (pitch > 0).
 
-        With ``planar`` the result is (forward, left, up) in the footprint's own frame, yaw ignored.
+        With ``planar`` the result is (forward, left, up) in the footprint's own frame, yaw ignored. On
+        terrain, ``ground`` (T, 2) is the height of the ground plane under the footprint and its slope (a
+        pitch, toes down when positive): the foot lifts and rolls in the plane tilted by the slope.
         """
         w = smoothstep((pitch + self._PIVOT_BLEND) / (2.0 * self._PIVOT_BLEND))[:, None]
         pivot = (1.0 - w) * self.heel[side] + w * self.ball[side]
@@ -270,7 +286,12 @@ class BodyRig:
         flat = np.column_stack([xy, self.ankle_height[side] + height])
         if planar:
             return flat + disp[:, [2, 0, 1]]
-        return flat + np.einsum("tab,tb->ta", rot_z(yaw) @ R_L_M_FACING_X, disp)
+        if ground is None:
+            return flat + np.einsum("tab,tb->ta", rot_z(yaw) @ R_L_M_FACING_X, disp)
+        above = np.einsum("ab,tb->ta", R_L_M_FACING_X, disp)  # forward, left, up of the footprint's frame
+        above[:, 2] += self.ankle_height[side] + height
+        tilted = np.einsum("tab,tb->ta", rot_z(yaw) @ rot_y(ground[:, 1]), above)
+        return np.column_stack([xy, ground[:, 0]]) + tilted
 
     def toe_flat(self, pitch: np.ndarray, rise: np.ndarray) -> np.ndarray:
         """Toe flexion keeping the toes flat on the ground when the heel is raised (fading as the foot rises)."""

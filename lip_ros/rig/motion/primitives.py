@@ -1,7 +1,7 @@
 """Smooth building blocks of procedural body motion (numpy, vectorised over time).
 
 Easing and bump curves, soft limits, eased keyframe channels, windowed
-oscillators, Euler-angle chains and closed ground loops. Every curve is at least
+oscillators, Euler-angle chains, closed ground loops and routes through corners. Every curve is at least
 C2 in time, so positions built from them can be differentiated twice (the IMU
 simulation finite-differences them at about 1 kHz).
 """
@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.ndimage import gaussian_filter1d
 from scipy.optimize import brentq
 
 from lip_ros.core.rotations import rot_x, rot_y, rot_z
@@ -29,6 +30,7 @@ __all__ = [
     "Oscillator",
     "euler_chain",
     "LoopPath",
+    "RoutePath",
     "LOOP_SHAPES",
 ]
 
@@ -198,3 +200,54 @@ class LoopPath:
         out = copy.copy(self)
         out.length = float(length)
         return out
+
+
+class RoutePath:
+    """A closed route on the ground through the corners of a polygon, turning on arcs of ``radius``.
+
+    The route starts at ``start`` (on the polygon's last edge, heading to its
+    first corner), runs straight along the edges and round each corner on a
+    circular arc tangent to both edges; the curvature is then smoothed over
+    ``smooth`` metres (a Gaussian in arc length) so that the heading is C2, and
+    the tiny closure error this leaves is spread along the loop. Same interface
+    as :class:`LoopPath` (``length``, :meth:`at` for any laps).
+    """
+
+    def __init__(self, start: np.ndarray, corners: np.ndarray, radius: float, smooth: float = 0.25,
+                 step: float = 0.01) -> None:
+        start = np.asarray(start, dtype=np.float64)
+        corners = np.asarray(corners, dtype=np.float64)
+        ring = np.concatenate([[start], corners, [start]])
+        edges = np.diff(ring, axis=0)
+        heading = np.arctan2(edges[:, 1], edges[:, 0])
+        turns = wrap_angle(np.diff(heading))  # at each corner
+        cut = radius * np.tan(0.5 * np.abs(turns))  # edge length taken by the arcs at each end
+        straight = np.linalg.norm(edges, axis=1) - np.concatenate([[0.0], cut]) - np.concatenate([cut, [0.0]])
+        if np.any(straight < 0.0):
+            raise ValueError("route corners are too close for the turning radius")
+        pieces = []  # (length, curvature) along the route
+        for k, turn in enumerate(turns):
+            pieces += [(straight[k], 0.0), (radius * abs(turn), np.sign(turn) / radius)]
+        pieces.append((straight[-1], 0.0))
+        ends = np.cumsum([length for length, _ in pieces])
+        self.length = float(ends[-1])
+        s = np.linspace(0.0, self.length, int(np.ceil(self.length / step)) + 1)
+        which = np.minimum(np.searchsorted(ends, s, side="right"), len(pieces) - 1)
+        kappa = np.array([c for _, c in pieces])[which]
+        ds = s[1] - s[0]
+        kappa = gaussian_filter1d(kappa, smooth / ds, mode="wrap")
+        psi = heading[0] + np.concatenate([[0.0], np.cumsum(0.5 * (kappa[1:] + kappa[:-1]) * ds)])
+        unit = np.stack([np.cos(psi), np.sin(psi)], -1)
+        xy = start + np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (unit[1:] + unit[:-1]) * ds, axis=0)])
+        xy -= np.outer(s / self.length, xy[-1] - start)  # close the loop exactly
+        self._lap_turn = float(psi[-1] - psi[0])  # 2 pi times the winding number
+        # splines (C2: the IMU simulation differentiates positions twice) of xy and of the heading less its lap trend
+        self._xy = CubicSpline(s / self.length, xy, bc_type="periodic")
+        self._psi = CubicSpline(s / self.length, psi - self._lap_turn * s / self.length, bc_type="periodic")
+
+    def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World xy (..., 2), heading (...,) and signed curvature (...,) at arc lengths ``s`` (any laps)."""
+        u = np.asarray(s, dtype=np.float64) / self.length
+        r = np.mod(u, 1.0)
+        heading = self._psi(r) + self._lap_turn * u
+        return self._xy(r), heading, (self._psi(r, 1) + self._lap_turn) / self.length
