@@ -33,7 +33,7 @@ from lip_ros.lip.sensors import LIDAR_TOPIC
 from lip_ros.outputs import GT_TOPICS, pose_messages
 from lip_ros.rig.capture import CaptureFrame, CaptureSession
 
-__all__ = ["write_capture_bag", "TRUTH_FILE", "LABELS_FILE"]
+__all__ = ["write_capture_bag", "LogOrderWriter", "Progress", "TRUTH_FILE", "LABELS_FILE"]
 
 TRUTH_FILE = "rig_truth.yaml"
 LABELS_FILE = "rig_labels.npz"
@@ -59,7 +59,7 @@ def _truth_sidecar(session: CaptureSession) -> dict[str, Any]:
     }
 
 
-class _Progress:
+class Progress:
     """A one-line progress counter on stderr."""
 
     def __init__(self, total: int, label: str, enabled: bool) -> None:
@@ -69,6 +69,35 @@ class _Progress:
         if self.enabled and (done == self.total or done % 10 == 0):
             end = "\n" if done == self.total else ""
             print(f"\r{self.label}: {done}/{self.total} frames", end=end, file=sys.stderr, flush=True)
+
+
+class LogOrderWriter:
+    """Messages pushed with their receive (log) time, written to an open MCAP writer in log-time order once
+    :meth:`flush` says nothing earlier can come; ``/gt/`` topics reliable, the others sensor QoS."""
+
+    def __init__(self, writer: Any, backend: RosbagsBackend) -> None:
+        self._writer, self._backend = writer, backend
+        self._pending: list[tuple[int, int, str, Any, str]] = []  # (log time, sequence, topic, message, type)
+        self._seq = 0
+        self._conns: dict[str, Any] = {}
+        #: messages written, per topic
+        self.counts: dict[str, int] = {}
+
+    def push(self, log_ns: int, topic: str, msg: Any, msgtype: str) -> None:
+        """Queue one message."""
+        heapq.heappush(self._pending, (log_ns, self._seq, topic, msg, msgtype))
+        self._seq += 1
+
+    def flush(self, before_ns: int | None = None) -> None:
+        """Write the queued messages logged before ``before_ns`` (all of them if None)."""
+        while self._pending and (before_ns is None or self._pending[0][0] < before_ns):
+            log_ns, _, topic, msg, msgtype = heapq.heappop(self._pending)
+            if topic not in self._conns:
+                qos = RELIABLE_QOS if topic.startswith("/gt/") else SENSOR_QOS
+                self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=self._backend.typestore,
+                                                                 offered_qos_profiles=[qos])
+            self._writer.write(self._conns[topic], log_ns, self._backend.serialize(msg, msgtype))
+            self.counts[topic] = self.counts.get(topic, 0) + 1
 
 
 def write_capture_bag(
@@ -81,62 +110,39 @@ def write_capture_bag(
     out = Path(out)
     backend = RosbagsBackend()
     skeleton = session.motion.skeleton
-    streams = session.imu_streams()
-    counts: dict[str, int] = {}
-    pending: list[tuple[int, int, str, Any, str]] = []  # (log time, sequence, topic, message, type) min-heap
-    seq = 0
-
-    def push(log_ns: int, topic: str, msg: Any, msgtype: str) -> None:
-        nonlocal seq
-        heapq.heappush(pending, (log_ns, seq, topic, msg, msgtype))
-        seq += 1
-
-    for s in streams.values():
-        frame_id = f"dot_{s.name}"
-        for k in range(len(s.stamp_ns)):
-            sample = imu_sample(int(s.stamp_ns[k]), frame_id, s.quat[k], s.gyro[k], s.accel[k])
-            push(int(s.stamp_ns[k]) + IMU_LATENCY_NS, s.topic, imu_to_msg(backend, sample), "sensor_msgs/msg/Imu")
-
     labels_idx: list[np.ndarray] = []
     labels_actor: list[np.ndarray] = []
     stamps: list[int] = []
     truth_stamps: list[int] = []
-    report = _Progress(session.num_frames, f"lip_rig {out.name}", progress)
+    report = Progress(session.num_frames, f"lip_rig {out.name}", progress)
     with mcap_writer(out, zstd=True) as writer:
-        conns: dict[str, Any] = {}
-
-        def connection(topic: str, msgtype: str) -> Any:
-            if topic not in conns:
-                qos = RELIABLE_QOS if topic.startswith("/gt/") else SENSOR_QOS
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=backend.typestore,
-                                                     offered_qos_profiles=[qos])
-            return conns[topic]
-
-        def flush(before_ns: int | None) -> None:
-            while pending and (before_ns is None or pending[0][0] < before_ns):
-                log_ns, _, topic, msg, msgtype = heapq.heappop(pending)
-                writer.write(connection(topic, msgtype), log_ns, backend.serialize(msg, msgtype))
-                counts[topic] = counts.get(topic, 0) + 1
-
+        log = LogOrderWriter(writer, backend)
+        for s in session.imu_streams().values():
+            frame_id = f"dot_{s.name}"
+            for k in range(len(s.stamp_ns)):
+                sample = imu_sample(int(s.stamp_ns[k]), frame_id, s.quat[k], s.gyro[k], s.accel[k])
+                log.push(int(s.stamp_ns[k]) + IMU_LATENCY_NS, s.topic, imu_to_msg(backend, sample),
+                         "sensor_msgs/msg/Imu")
         period = session.lidar.period_ns
         for cf in session.frames():
             stamp = cf.stamp_ns
             cloud = array_to_cloud(backend, cf.frame.points, stamp, LIDAR_FRAME)
-            push(stamp + period + CLOUD_LATENCY_NS, LIDAR_TOPIC, cloud, "sensor_msgs/msg/PointCloud2")
+            log.push(stamp + period + CLOUD_LATENCY_NS, LIDAR_TOPIC, cloud, "sensor_msgs/msg/PointCloud2")
             gt = cf.truth
             for topic, (msgtype, msg) in pose_messages(backend, GT_TOPICS, skeleton, gt.stamp_ns, LIDAR_FRAME,
                                                        gt.local_rot, gt.glob_rot, gt.joint_pos).items():
-                push(gt.stamp_ns, topic, msg, msgtype)
+                log.push(gt.stamp_ns, topic, msg, msgtype)
             flat = np.flatnonzero(cf.frame.labels.ravel() >= 0)
             labels_idx.append(flat.astype(np.int32))
             labels_actor.append(cf.frame.labels.ravel()[flat].astype(np.int8))
             stamps.append(stamp)
             truth_stamps.append(cf.truth.stamp_ns)
-            flush(stamp + period)  # everything of later frames is logged after the next frame starts
+            log.flush(stamp + period)  # everything of later frames is logged after the next frame starts
             report(cf.index + 1)
             if on_frame is not None:
                 on_frame(cf)
-        flush(None)
+        log.flush()
+        counts = log.counts
 
     offsets = np.concatenate([[0], np.cumsum([len(i) for i in labels_idx])]).astype(np.int64)
     np.savez_compressed(

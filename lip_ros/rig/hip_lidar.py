@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lip_ros.core.frames import R_L_M_FACING_X
-from lip_ros.core.rotations import rot_y
+from lip_ros.core.rotations import axis_angle_to_matrix, rot_y
 from lip_ros.rig.lidar import SensorPoses
 from lip_ros.rig.trajectory import Trajectory
 
@@ -30,11 +30,21 @@ class HipMount:
 
     lever_m: np.ndarray = field(default_factory=lambda: np.array([-0.15, 0.0, -0.1]))
     tilt_up_deg: float = 30.0
+    misalignment: np.ndarray = field(default_factory=lambda: np.zeros(3))  # rad, a rotation vector in L
 
     @property
     def R_M_L(self) -> np.ndarray:
-        """(3, 3) the sensor frame L in the pelvis frame M: looking where the body faces, tilted up."""
-        return R_L_M_FACING_X.T @ rot_y(-np.radians(self.tilt_up_deg))
+        """(3, 3) the sensor frame L in the pelvis frame M: looking where the body faces, tilted up (and turned
+        by the misalignment)."""
+        return R_L_M_FACING_X.T @ rot_y(-np.radians(self.tilt_up_deg)) @ axis_angle_to_matrix(self.misalignment)
+
+    def perturbed(self, rng: np.random.Generator, lever_m: float = 0.03, tilt_deg: float = 5.0,
+                  turn_deg: float = 3.0) -> HipMount:
+        """This mounting as a real one differs from its nominal values: the lever arm off by up to ``lever_m``
+        per axis, the tilt by up to ``tilt_deg``, turned by up to ``turn_deg`` about each axis (uniform)."""
+        return HipMount(self.lever_m + rng.uniform(-lever_m, lever_m, 3),
+                        self.tilt_up_deg + float(rng.uniform(-tilt_deg, tilt_deg)),
+                        self.misalignment + np.radians(rng.uniform(-turn_deg, turn_deg, 3)))
 
     def poses(self, motion: Trajectory, start_ns: int = 0) -> SensorPoses:
         """The sensor's poses (R_W_L, p_W_L) at stamps (ns; ``start_ns`` is the motion's time 0) of ``motion``."""

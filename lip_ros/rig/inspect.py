@@ -17,7 +17,10 @@ from lip_ros.lip.sensors import LIDAR_TOPIC
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.rig.bag import LABELS_FILE, TRUTH_FILE
 from lip_ros.rig.mesh_raycast import MeshRaycaster
+from lip_ros.rig.motion.posture import sole_points
+from lip_ros.rig.site_bag import HIP_LIDAR_TOPIC
 from lip_ros.rig.terrain import SITE_HALF_M, Terrain
+from lip_ros.rig.trajectory import Trajectory
 
 __all__ = ["BagSummary", "summarize_bag", "plot_bag", "plot_terrain"]
 
@@ -53,7 +56,7 @@ class BagSummary:
             out.append(f"  {name}: |f| at rest {norm:.3f} m/s^2, up-component {self.imu_rest_up[name]:+.3f}")
         if self.truth:
             perf = self.truth["performer"]
-            out.append(f"  truth: scenario {perf['scenario']}, body scale {perf['body_scale']:.3f}, "
+            out.append(f"  truth: scenario {perf.get('scenario', 'site walk')}, body scale {perf['body_scale']:.3f}, "
                        f"phases {', '.join(p['name'] for p in self.truth['phases'])}")
         return out
 
@@ -72,19 +75,21 @@ def summarize_bag(path: str | Path) -> BagSummary:
     topics = bag_topics(path)
     truth = _load_truth(path)
     a_pose = next((p for p in truth["phases"] if p["name"] == "a_pose"), None) if truth else None
+    suit_offset_ns = int(round(truth.get("suit", {}).get("clock_offset_s", 0.0) * 1e9)) if truth else 0
     stamps: dict[str, list[int]] = {t: [] for t in topics}
     rest: dict[str, list[tuple[float, float]]] = {}
     shape, valid, pixels = None, 0, 0
     for m in read_messages(path):
         stamp, _ = read_header(m.msg)
         stamps[m.topic].append(stamp)
-        if m.topic == LIDAR_TOPIC:
+        if m.topic in (LIDAR_TOPIC, HIP_LIDAR_TOPIC):
             pts = cloud_to_array(m.msg, ["x"])
             shape = pts.shape
             valid += int(np.isfinite(pts["x"]).sum())
             pixels += pts.size
         elif topics[m.topic].msgtype == "sensor_msgs/msg/Imu":
-            if a_pose and a_pose["start_ns"] + 300_000_000 <= stamp <= a_pose["end_ns"] - 300_000_000:
+            at = stamp - (suit_offset_ns if m.topic.startswith("/mocap/") else 0)  # on the LiDAR's clock
+            if a_pose and a_pose["start_ns"] + 300_000_000 <= at <= a_pose["end_ns"] - 300_000_000:
                 s = msg_to_imu(m.msg)
                 up = quat_to_matrix(s.quat) @ s.accel  # the specific force in the sensor's inertial frame
                 rest.setdefault(m.topic, []).append((float(np.linalg.norm(s.accel)), float(up[2] / np.linalg.norm(up))))
@@ -151,9 +156,12 @@ def plot_bag(path: str | Path, out_png: str | Path, frame_index: int | None = No
     return out_png
 
 
-def plot_terrain(terrain: Terrain, out_png: str | Path, resolution_m: float = 0.1) -> Path:
+def plot_terrain(terrain: Terrain, out_png: str | Path, resolution_m: float = 0.1,
+                 motion: Trajectory | None = None) -> Path:
     """A PNG: the site from above (height of what a ray from the sky hits first; walkable surfaces in colour,
-    obstacles in grey), and the height profiles along the stair flight and the ramp."""
+    obstacles in grey), and the height profiles along the stair flight and the ramp; with a ``motion`` (in the
+    site's frame) also its pelvis path from above and the heights of the pelvis and the lowest sole point of
+    each foot over time, against the surface under them."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -169,7 +177,9 @@ def plot_terrain(terrain: Terrain, out_png: str | Path, resolution_m: float = 0.
     height = np.where(tri >= 0, top - dist, np.nan).reshape(x.shape)  # nothing hit: off the site
     obstacle = ((tri >= 0) & ~terrain.blocks.walkable[np.maximum(tri, 0) // 12]).reshape(x.shape)
     lay = terrain.layout
-    fig, axes = plt.subplots(1, 2, figsize=(15, 5.5), gridspec_kw={"width_ratios": [1.6, 1]})
+    panels = 3 if motion is not None else 2
+    fig, axes = plt.subplots(1, panels, figsize=(7.5 * panels, 5.5), gridspec_kw={"width_ratios": [1.6] + [1] * (
+        panels - 1)})
     image = axes[0].imshow(np.ma.masked_where(obstacle, height), origin="lower", extent=(-sx, sx, -sy, sy),
                            cmap="viridis")
     axes[0].imshow(np.ma.masked_where(~obstacle, obstacle), origin="lower", extent=(-sx, sx, -sy, sy), cmap="gray",
@@ -184,6 +194,20 @@ def plot_terrain(terrain: Terrain, out_png: str | Path, resolution_m: float = 0.
     axes[1].set(xlabel="x (m)", ylabel="height (m)", title=(
         f"{lay['risers']} risers of {100 * lay['riser_m']:.1f} cm, ramp {lay['ramp_deg']:.1f} deg"))
     axes[1].legend()
+    if motion is not None:
+        t = np.arange(0.0, motion.duration, 0.02)
+        pose = motion.sample(t)
+        glob, joints = pose.global_pose(motion.skeleton)
+        soles = sole_points(motion.skeleton, glob, joints).reshape(len(t), 3, 2, 3)
+        lowest = np.take_along_axis(soles, np.argmin(soles[..., 2], axis=1)[:, None, :, None], axis=1)[:, 0]
+        axes[0].plot(pose.root_pos[:, 0], pose.root_pos[:, 1], "r-", lw=0.8, label="pelvis")
+        axes[0].legend(loc="upper right")
+        axes[2].plot(t, pose.root_pos[:, 2], "k-", lw=0.8, label="pelvis")
+        for side, colour in ((0, "tab:blue"), (1, "tab:orange")):
+            axes[2].plot(t, lowest[:, side, 2], "-", color=colour, lw=0.6, label=("left", "right")[side] + " sole")
+        axes[2].plot(t, terrain.surface_height(pose.root_pos[:, :2]), "g--", lw=0.8, label="surface under pelvis")
+        axes[2].set(xlabel="time (s)", ylabel="height (m)", title="the walk: pelvis and feet")
+        axes[2].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out_png, dpi=80)
     plt.close(fig)

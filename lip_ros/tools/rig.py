@@ -2,7 +2,8 @@
 
   lip_rig make-bag --scenario walk --seconds 20 --seed 3 --out DIR
   lip_rig inspect DIR [--plot PNG]
-  lip_rig site --seed 3 [--plot PNG]     (a scene with height of the HSC4D rig)
+  lip_rig site --seed 3 [--walk 90] [--plot PNG]     (a scene with height of the HSC4D rig, a walk through it)
+  lip_rig site-bag --seed 3 --seconds 90 --out DIR   (an HSC4D capture: hip LiDAR, suit, its odometry)
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 
 from lip_ros.rig.capture import SENSORS, CaptureConfig, CaptureSession
 from lip_ros.rig.motion import SCENARIOS
+from lip_ros.rig.site_capture import SiteCaptureConfig
 
 
 def _make_bag(args: argparse.Namespace) -> int:
@@ -59,8 +61,32 @@ def _site(args: argparse.Namespace) -> int:
     print(f"site {2 * SITE_HALF_M[0]:g} x {2 * SITE_HALF_M[1]:g} m, {len(terrain.blocks)} blocks: "
           + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in terrain.layout.items()
                       if not isinstance(v, tuple)))
+    motion = None
+    if args.walk:
+        from lip_ros.rig.motion import make_site_motion
+
+        motion = make_site_motion(terrain, args.walk, args.seed)
+        print("phases: " + ", ".join(f"{p.name} {p.t_start:.1f}-{p.t_end:.1f} s" for p in motion.phases))
     if args.plot:
-        print(f"plot: {plot_terrain(terrain, args.plot)}")
+        print(f"plot: {plot_terrain(terrain, args.plot, motion=motion)}")
+    return 0
+
+
+def _site_bag(args: argparse.Namespace) -> int:
+    from lip_ros.rig.site_bag import write_site_bag
+    from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
+
+    if args.out.exists():
+        print(f"lip_rig: {args.out} exists; choose a new directory", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    capture = SiteCapture(SiteCaptureConfig(seed=args.seed, seconds=args.seconds, columns=args.columns,
+                                            rate_hz=args.rate))
+    counts = write_site_bag(capture, args.out, progress=not args.quiet)
+    wall = time.perf_counter() - t0
+    size = sum(f.stat().st_size for f in args.out.iterdir()) / 1e6
+    print(f"wrote {args.out}: {capture.num_frames} frames, {sum(counts.values())} messages, {size:.1f} MB, "
+          f"{wall:.1f} s ({capture.motion.duration / wall:.2f}x real time)")
     return 0
 
 
@@ -113,8 +139,17 @@ def parser() -> argparse.ArgumentParser:
     i.set_defaults(func=_inspect)
     t = sub.add_parser("site", help="a scene with height of the HSC4D rig, drawn from a seed (and its plot)")
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--walk", type=float, metavar="SECONDS", help="also a performer's capture through it")
     t.add_argument("--plot", type=Path, help="write a PNG here")
     t.set_defaults(func=_site)
+    b = sub.add_parser("site-bag", help="simulate an HSC4D capture (hip LiDAR, suit, odometry) as an MCAP bag")
+    b.add_argument("--seed", type=int, default=SiteCaptureConfig.seed)
+    b.add_argument("--seconds", type=float, default=SiteCaptureConfig.seconds, help="capture length")
+    b.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=SiteCaptureConfig.columns)
+    b.add_argument("--rate", type=float, choices=(10.0, 20.0), default=SiteCaptureConfig.rate_hz, help="Hz")
+    b.add_argument("--out", type=Path, required=True, help="bag directory to create")
+    b.add_argument("--quiet", action="store_true", help="no progress output")
+    b.set_defaults(func=_site_bag)
     return p
 
 

@@ -208,12 +208,13 @@ class RoutePath:
     The route starts at ``start`` (on the polygon's last edge, heading to its
     first corner), runs straight along the edges and round each corner on a
     circular arc tangent to both edges; the curvature is then smoothed over
-    ``smooth`` metres (a Gaussian in arc length) so that the heading is C2, and
-    the tiny closure error this leaves is spread along the loop. Same interface
+    ``smooth`` metres (a Gaussian in arc length) so that the heading is C2 (each
+    smoothed turn moves the straight after it sideways by a few mm), and the
+    closure error this leaves is spread along the loop. Same interface
     as :class:`LoopPath` (``length``, :meth:`at` for any laps).
     """
 
-    def __init__(self, start: np.ndarray, corners: np.ndarray, radius: float, smooth: float = 0.25,
+    def __init__(self, start: np.ndarray, corners: np.ndarray, radius: float, smooth: float = 0.1,
                  step: float = 0.01) -> None:
         start = np.asarray(start, dtype=np.float64)
         corners = np.asarray(corners, dtype=np.float64)
@@ -233,10 +234,14 @@ class RoutePath:
         self.length = float(ends[-1])
         s = np.linspace(0.0, self.length, int(np.ceil(self.length / step)) + 1)
         which = np.minimum(np.searchsorted(ends, s, side="right"), len(pieces) - 1)
-        kappa = np.array([c for _, c in pieces])[which]
+        kappa = np.array([c for _, c in pieces])
+        starts = ends - np.array([length for length, _ in pieces])
+        psi_start = heading[0] + np.concatenate([[0.0], np.cumsum(kappa * (ends - starts))[:-1]])
+        psi = psi_start[which] + kappa[which] * (s - starts[which])  # exact on the grid
         ds = s[1] - s[0]
-        kappa = gaussian_filter1d(kappa, smooth / ds, mode="wrap")
-        psi = heading[0] + np.concatenate([[0.0], np.cumsum(0.5 * (kappa[1:] + kappa[:-1]) * ds)])
+        trend = (psi[-1] - psi[0]) * s / self.length
+        wave = gaussian_filter1d((psi - trend)[:-1], smooth / ds, mode="wrap")  # one period (s = L is s = 0)
+        psi = trend + np.append(wave, wave[0])  # = the curvature smoothed
         unit = np.stack([np.cos(psi), np.sin(psi)], -1)
         xy = start + np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (unit[1:] + unit[:-1]) * ds, axis=0)])
         xy -= np.outer(s / self.length, xy[-1] - start)  # close the loop exactly

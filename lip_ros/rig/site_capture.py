@@ -1,0 +1,156 @@
+"""A synthetic HSC4D capture: a performer who carries a hip LiDAR and wears a 17-IMU suit walks through a site.
+
+One seed draws the site (:class:`lip_ros.rig.terrain.Terrain`), the motion
+(:func:`lip_ros.rig.motion.make_site_motion`: A-pose, a ballistic jump, the
+site's route over stairs and a ramp), the body, the LiDAR's true mounting on
+the hip (the nominal :class:`~lip_ros.rig.hip_lidar.HipMount` perturbed: the
+method knows only the nominal one), the suit's inertial heading, clock offset
+(up to +-1 s) and sensor errors, and its drifting odometry. Everything is in
+the site's world frame W (z up, the open ground at z = 0); stamps are
+nanoseconds on the LiDAR's clock, ``epoch_ns`` plus seconds since the motion
+began, except the suit's, which run ``clock_offset_s`` ahead.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from lip_ros.core.body import BodyModel
+from lip_ros.rig.capture import EPOCH_NS
+from lip_ros.rig.hip_lidar import HipMount
+from lip_ros.rig.imu import ImuNoise, ImuRigConfig, ImuStream, ImuTruth, make_imu_truth, simulate_imus
+from lip_ros.rig.lidar import Actor, Frame, OusterModel
+from lip_ros.rig.mesh_raycast import MeshRaycaster
+from lip_ros.rig.motion import PerformerMotion, make_site_motion
+from lip_ros.rig.suit_odometry import (
+    FootContacts,
+    SuitOdometry,
+    SuitOdometryConfig,
+    foot_contacts,
+    simulate_suit_odometry,
+)
+from lip_ros.rig.terrain import Terrain
+
+__all__ = ["SiteCaptureConfig", "SiteTruth", "SiteCapture", "TRUTH_RATE_HZ"]
+
+#: Rate of the ground truth trajectories (Hz).
+TRUTH_RATE_HZ = 100.0
+
+
+@dataclass(frozen=True)
+class SiteCaptureConfig:
+    """What defines an HSC4D capture; ``seed`` draws the rest."""
+
+    seed: int = 0
+    seconds: float = 90.0
+    columns: int = 1024
+    rate_hz: float = 10.0
+    imu_noise: bool = True
+    odometry: SuitOdometryConfig = field(default_factory=SuitOdometryConfig)
+
+    def __post_init__(self) -> None:
+        if self.columns not in (512, 1024, 2048) or self.rate_hz not in (10.0, 20.0) or self.seconds <= 0:
+            raise ValueError(f"invalid {self}")
+
+    def as_dict(self) -> dict:
+        """Plain Python types."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class SiteTruth:
+    """The performer at T times (s since the motion began): pelvis position (T, 3) and orientation (T, 3, 3),
+    joint positions (T, 24, 3), global rotations (T, 24, 3, 3) and local ones (T, 24, 3, 3), all in W; the
+    LiDAR's pose (T, 3, 3), (T, 3); the planted feet."""
+
+    t: np.ndarray
+    pelvis: np.ndarray
+    R_W_M: np.ndarray
+    joints: np.ndarray
+    glob_rot: np.ndarray
+    local_rot: np.ndarray
+    R_W_L: np.ndarray
+    p_W_L: np.ndarray
+    contacts: FootContacts
+
+
+@dataclass
+class SiteCapture:
+    """The simulated world of one HSC4D capture, built from a :class:`SiteCaptureConfig`."""
+
+    config: SiteCaptureConfig
+    epoch_ns: int = EPOCH_NS
+    terrain: Terrain = field(init=False)
+    motion: PerformerMotion = field(init=False)
+    body: BodyModel = field(init=False)
+    mount: HipMount = field(init=False)
+    lidar: OusterModel = field(init=False)
+    suit: ImuTruth = field(init=False)
+
+    def __post_init__(self) -> None:
+        cfg = self.config
+        self.terrain = Terrain.random(cfg.seed)
+        self.motion = make_site_motion(self.terrain, cfg.seconds, cfg.seed)
+        rng = np.random.default_rng([cfg.seed, 300])
+        self.body = BodyModel(self.motion.skeleton, girth=float(rng.uniform(0.9, 1.15)))
+        self.mount = HipMount().perturbed(rng)
+        self.lidar = OusterModel.os1_64(columns=cfg.columns, rate_hz=cfg.rate_hz, column0_azimuth_deg=0.0)
+        self.suit = make_imu_truth(self.motion.skeleton, ImuRigConfig.suit(self.motion.skeleton),
+                                   np.random.default_rng([cfg.seed, 301]))
+        self._caster: MeshRaycaster | None = None
+
+    @property
+    def num_frames(self) -> int:
+        """Frames whose whole sweep lies inside the capture."""
+        return int(np.floor(self.motion.duration * self.config.rate_hz + 1e-9))
+
+    def frame_stamp_ns(self, k: int) -> int:
+        """Header stamp of frame ``k`` (its first column's time)."""
+        return self.epoch_ns + k * self.lidar.period_ns
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[tuple[int, Frame]]:
+        """(k, frame) for frames ``start``..``stop`` (default: all), each from its own random stream; the
+        wearer's own body blocks and returns rays."""
+        if self._caster is None:
+            self._caster = MeshRaycaster(self.terrain.triangles())
+        poses = self.mount.poses(self.motion, self.epoch_ns)
+        wearer = (Actor(self.body, self.motion),)
+        for k in range(start, self.num_frames if stop is None else min(stop, self.num_frames)):
+            rng = np.random.default_rng([self.config.seed, 400, k])
+            yield k, self.lidar.scan_moving(self.frame_stamp_ns(k), self._caster, poses, rng, wearer,
+                                            start_ns=self.epoch_ns)
+
+    def suit_streams(self) -> dict[str, ImuStream]:
+        """The 17 suit IMUs over the capture, stamped on the suit's clock."""
+        noise = ImuNoise.suit() if self.config.imu_noise else ImuNoise.none()
+        streams = simulate_imus(self.motion, self.suit, 0.0, self.motion.duration, noise,
+                                np.random.default_rng([self.config.seed, 302]))
+        for s in streams.values():
+            s.stamp_ns = s.stamp_ns + self.epoch_ns
+        return streams
+
+    def suit_odometry(self) -> SuitOdometry:
+        """The suit's drifting ``/mocap/odometry``, stamped on the suit's clock."""
+        odo = simulate_suit_odometry(self.motion, 0.0, self.motion.duration, self.suit.psi,
+                                     self.suit.clock_offset_s, np.random.default_rng([self.config.seed, 303]),
+                                     self.config.odometry)
+        odo.stamp_ns = odo.stamp_ns + self.epoch_ns
+        return odo
+
+    def truth(self, t: np.ndarray | None = None) -> SiteTruth:
+        """The ground truth at times ``t`` (s since the motion began; default: the capture at TRUTH_RATE_HZ)."""
+        if t is None:
+            t = np.arange(0.0, self.motion.duration, 1.0 / TRUTH_RATE_HZ)
+        pose = self.motion.sample(t)
+        glob, joints = pose.global_pose(self.motion.skeleton)
+        R_W_L, p_W_L = self.mount.poses(self.motion)(np.rint(np.asarray(t) * 1e9).astype(np.int64))
+        return SiteTruth(np.asarray(t, dtype=np.float64), pose.root_pos, pose.local_rot[:, 0], joints, glob,
+                         pose.local_rot, R_W_L, p_W_L, foot_contacts(self.motion, t))
+
+    def phases_ns(self) -> list[tuple[str, int, int]]:
+        """The motion's phase windows (a_pose, jump, walk, transitions) on the LiDAR's clock."""
+        return [(p.name, self.epoch_ns + int(p.t_start * 1e9), self.epoch_ns + int(p.t_end * 1e9))
+                for p in self.motion.phases]
