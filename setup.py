@@ -26,6 +26,7 @@ CORE = [
     "isal>=1.7,<2",  # lip_ros.bagstream checks MCAP chunk CRCs with its crc32
     "matplotlib>=3.8,<4",
     "embreex>=4.4,<5",  # ray casting of the HSC4D rig's scenes (lip_ros.rig.mesh_raycast)
+    "kiss-icp==1.3.0",  # the HSC4D LiDAR odometry's registration core (lip_ros.hsc4d.lidar_odometry)
 ]
 TEST = [
     "pytest>=8,<10",

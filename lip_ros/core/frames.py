@@ -23,3 +23,11 @@ def level_rotation(up: np.ndarray) -> np.ndarray:
         raise ValueError(f"up {up} points down: no level frame")
     k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
     return np.eye(3) + k + k @ k / (1.0 + c)  # Rodrigues for the rotation taking z onto up
+
+
+def hip_lidar_rotation(tilt_up_deg: float) -> np.ndarray:
+    """R_M_L (3, 3): a LiDAR worn on the hip, in the pelvis frame M (the HSC4D rig): its +x where the body faces,
+    its z up the body, then tilted up by ``tilt_up_deg`` (about its own y axis: +x rises)."""
+    t = np.radians(tilt_up_deg)
+    c, s = np.cos(t), np.sin(t)
+    return R_L_M_FACING_X.T @ np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])

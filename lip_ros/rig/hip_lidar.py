@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lip_ros.core.frames import R_L_M_FACING_X
-from lip_ros.core.rotations import axis_angle_to_matrix, rot_y
+from lip_ros.core.frames import hip_lidar_rotation
+from lip_ros.core.rotations import axis_angle_to_matrix
 from lip_ros.rig.lidar import SensorPoses
 from lip_ros.rig.trajectory import Trajectory
 
@@ -36,7 +36,7 @@ class HipMount:
     def R_M_L(self) -> np.ndarray:
         """(3, 3) the sensor frame L in the pelvis frame M: looking where the body faces, tilted up (and turned
         by the misalignment)."""
-        return R_L_M_FACING_X.T @ rot_y(-np.radians(self.tilt_up_deg)) @ axis_angle_to_matrix(self.misalignment)
+        return hip_lidar_rotation(self.tilt_up_deg) @ axis_angle_to_matrix(self.misalignment)
 
     def perturbed(self, rng: np.random.Generator, lever_m: float = 0.03, tilt_deg: float = 5.0,
                   turn_deg: float = 3.0) -> HipMount:

@@ -150,6 +150,13 @@ class SiteCapture:
         return SiteTruth(np.asarray(t, dtype=np.float64), pose.root_pos, pose.local_rot[:, 0], joints, glob,
                          pose.local_rot, R_W_L, p_W_L, foot_contacts(self.motion, t))
 
+    def lidar_poses(self, stamp_ns: np.ndarray) -> np.ndarray:
+        """(N, 4, 4) the LiDAR's true pose T_W_L at LiDAR-clock times ``stamp_ns`` (N,)."""
+        R_W_L, p_W_L = self.mount.poses(self.motion, self.epoch_ns)(np.asarray(stamp_ns, dtype=np.int64))
+        out = np.tile(np.eye(4), (len(p_W_L), 1, 1))
+        out[:, :3, :3], out[:, :3, 3] = R_W_L, p_W_L
+        return out
+
     def phases_ns(self) -> list[tuple[str, int, int]]:
         """The motion's phase windows (a_pose, jump, walk, transitions) on the LiDAR's clock."""
         return [(p.name, self.epoch_ns + int(p.t_start * 1e9), self.epoch_ns + int(p.t_end * 1e9))

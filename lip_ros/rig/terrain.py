@@ -10,8 +10,9 @@ point is the highest walkable top face there (:meth:`Terrain.surface_height`,
 the ground truth of foot contact).
 :meth:`Terrain.random` lays out a site of 60 x 40 m from a seed: a terrace
 reached by a stair flight of 10-16 risers and by a ramp of 5-12 deg, a
-roofed room with a door, walls with doorways, pillars and crates, each
-dimension drawn from the seed. Ray casting: :mod:`lip_ros.rig.mesh_raycast`
+roofed room with a door, walls with doorways, pillars and crates, building
+facades along the edges (with gaps), a kiosk and lamp posts on the terrace,
+each dimension drawn from the seed. Ray casting: :mod:`lip_ros.rig.mesh_raycast`
 on :meth:`Terrain.triangles`.
 """
 
@@ -27,6 +28,8 @@ __all__ = ["Blocks", "Terrain", "SITE_HALF_M", "ROUTE_RADIUS_M"]
 
 #: Half the extent of a random site along x and y (metres): 60 x 40 m.
 SITE_HALF_M = (30.0, 20.0)
+#: The highest a terrace can be (16 risers of 18 cm).
+_TERRACE_MAX_M = 16 * 0.18
 #: A ramp runs at most this far (m): steeper than drawn if the terrace is high (room for the route round it).
 _MAX_RAMP_RUN_M = 25.0
 #: The route's turning radius (m) and the straight it keeps before and after a stair flight or a ramp.
@@ -157,6 +160,7 @@ class Terrain:
         parts.append(_room(rng, x=float(rng.uniform(-26.0, -14.0)), y=float(rng.uniform(6.0, 10.0))))
         parts.append(_walls_with_openings(rng))
         parts.append(_clutter(rng))
+        parts.append(_surroundings(rng, terrace_x, terrace_y[1]))
         layout = {"risers": risers, "riser_m": riser, "tread_m": tread, "terrace_height_m": height,
                   "terrace_x_m": terrace_x, "terrace_y_m": terrace_y, "stair_y_m": (stair_y, stair_y + stair_width),
                   "ramp_deg": ramp_deg, "ramp_y_m": (ramp_y, ramp_y + ramp_width), "ramp_run_m": run}
@@ -183,6 +187,34 @@ def _walls_with_openings(rng: np.random.Generator) -> Blocks:
         parts.append(Blocks.axis_aligned(np.array([[x0, y, 0.0], [x0 + gap + 1.2, y, 0.0]]),
                                          np.array([[x0 + gap, y + 0.25, h], [x0 + length, y + 0.25, h]]),
                                          walkable=False))
+    return Blocks.concatenate(parts)
+
+
+def _surroundings(rng: np.random.Generator, terrace_x: float, terrace_north: float) -> Blocks:
+    """What bounds a real site: building facades along its four edges (segments 4-9 m high with gaps), and on
+    the terrace a kiosk and a row of lamp posts east of the route."""
+    sx, sy = SITE_HALF_M
+    parts = []
+    for axis, fixed in ((0, -sy + 0.5), (0, sy - 0.5), (1, -sx + 0.5), (1, sx - 0.5)):
+        half = sx if axis == 0 else sy
+        edges = np.sort(rng.uniform(-half + 2.0, half - 2.0, 5))
+        ends = np.concatenate([[-half + 0.5], edges, [half - 0.5]])
+        for a, b in zip(ends[:-1], ends[1:], strict=True):
+            if rng.random() < 0.2 or b - a < 1.5:  # a gap between buildings
+                continue
+            lo, hi = [0.0, 0.0, 0.0], [0.0, 0.0, float(rng.uniform(4.0, 9.0))]
+            lo[axis], hi[axis] = a + 0.3, b - 0.3
+            lo[1 - axis], hi[1 - axis] = (fixed - 0.4, fixed) if fixed > 0 else (fixed, fixed + 0.4)
+            parts.append(Blocks.axis_aligned(np.array(lo), np.array(hi), walkable=False))
+    kx, ky = float(rng.uniform(terrace_x + 8.0, 22.0)), float(rng.uniform(-16.0, -10.0))
+    parts.append(Blocks.axis_aligned([kx, ky, 0.0], [kx + rng.uniform(3.0, 5.0), ky + rng.uniform(3.0, 5.0),
+                                                     _TERRACE_MAX_M + rng.uniform(2.5, 3.5)], walkable=False))
+    n = 4
+    lx = np.full(n, terrace_x + 5.5)
+    ly = np.linspace(-18.0, terrace_north - 1.0, n)
+    parts.append(Blocks.axis_aligned(np.stack([lx - 0.1, ly - 0.1, np.zeros(n)], 1),
+                                     np.stack([lx + 0.1, ly + 0.1, np.full(n, _TERRACE_MAX_M + 4.0)], 1),
+                                     walkable=False))
     return Blocks.concatenate(parts)
 
 

@@ -17,7 +17,7 @@ from lip_ros.rig.bag import TRUTH_FILE
 from lip_ros.rig.motion import make_site_motion
 from lip_ros.rig.motion.posture import sole_points
 from lip_ros.rig.motion.primitives import RoutePath
-from lip_ros.rig.site_bag import HIP_LIDAR_TOPIC, SITE_TRUTH_FILE, SUIT_ODOMETRY_TOPIC, write_site_bag
+from lip_ros.rig.site_bag import HIP_LIDAR_TOPIC, SITE_TRUTH_FILE, SUIT_ODOMETRY_TOPIC
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 from lip_ros.rig.suit_odometry import SuitOdometryConfig, simulate_suit_odometry
 from lip_ros.rig.terrain import ROUTE_RADIUS_M, Terrain

@@ -11,8 +11,8 @@ the activities in :mod:`lip_ros.rig.motion.acts`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np

@@ -1,0 +1,217 @@
+"""LiDAR odometry and mapping of the hip-worn LiDAR on kiss-icp's registration core (the one module that imports
+``kiss_icp``), ROS-free.
+
+Per sweep (:meth:`LidarOdometry.register`):
+
+1. the wearer's own returns are removed (:class:`WearerFilter`: a cylinder
+   round the body's axis, placed with the nominal hip mounting), and points
+   outside [``min_range_m``, ``max_range_m``];
+2. deskewing: each point is moved to where it would be seen from the sensor at
+   the sweep's reference time (its middle) using its own time (the cloud's
+   per-point ``t``): the sensor's rotation over the sweep from the pelvis IMU
+   when given (``rotation``: the hip swings and yaws within a sweep), else
+   kiss-icp's constant-velocity model (the last frame-to-frame motion), and the
+   translation at the last velocity;
+3. voxel subsampling, then frame-to-map point-to-point ICP (kiss-icp's robust
+   registration, here with a fixed threshold) from an initial guess that takes
+   the rotation from the IMU when given; a registration that moves the guess
+   farther than ``max_correction_m`` is not believed (the guess is kept, and
+   the step says so); the map is kiss-icp's voxel hash map of deskewed points,
+   bounded by ``max_range_m`` round the sensor.
+
+Poses are of the sensor frame L at the reference times, in the odometry frame
+O (L at the first sweep's reference time).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from kiss_icp.config import KISSConfig
+from kiss_icp.config.config import AdaptiveThresholdConfig, DataConfig, MappingConfig, RegistrationConfig
+from kiss_icp.mapping import get_voxel_hash_map
+from kiss_icp.registration import get_registration
+from kiss_icp.threshold import get_threshold_estimator
+from kiss_icp.voxelization import voxel_down_sample
+
+from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from lip_ros.hsc4d.mount import HipMountPrior
+
+__all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "OdometryStep", "LidarOdometry"]
+
+#: ``rotation(t_ns, ref_ns)``: the sensor frame at times ``t_ns`` (N,) in the sensor frame at ``ref_ns``,
+#: R_Lref_L (N, 3, 3); NaN where unknown.
+SweepRotation = Callable[[np.ndarray, int], np.ndarray]
+
+
+@dataclass(frozen=True)
+class OdometryConfig:
+    """Registration and map settings (kiss-icp's names in brackets)."""
+
+    voxel_size_m: float = 0.5  # [mapping.voxel_size]
+    max_range_m: float = 60.0  # [data.max_range] farther points are dropped; the map keeps this far round
+    min_range_m: float = 0.5  # [data.min_range]
+    max_points_per_voxel: int = 20  # [mapping.max_points_per_voxel]
+    initial_threshold_m: float = 2.0  # [adaptive_threshold.initial_threshold]
+    # [adaptive_threshold.fixed_threshold] None: kiss-icp's adaptive one, which measures how far each sweep is from
+    # its constant-velocity prediction: a walker's sweeps are far from it, so it stays at 0.4-0.6 m and lets ICP
+    # match wrong points (0.6 m off at a jump); with the IMU's rotation the guess is good to a few cm
+    fixed_threshold_m: float | None = 0.1
+    # a registration that moves the sensor farther than this from the prediction is not believed (the prediction
+    # is kept): with the IMU's rotation a sweep's guess is good to a few cm, and a jump of decimetres is ICP
+    # sliding along a direction the scene does not pin down
+    max_correction_m: float = 0.3
+    min_motion_m: float = 0.1  # [adaptive_threshold.min_motion_th]
+    max_iterations: int = 500  # [registration.max_num_iterations]
+    convergence: float = 1e-4  # [registration.convergence_criterion]
+    threads: int = 0  # [registration.max_num_threads] 0: all cores
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.voxel_size_m and 0.0 <= self.min_range_m < self.max_range_m
+                and self.max_points_per_voxel > 0 and self.initial_threshold_m > 0.0 and self.max_iterations > 0
+                and self.convergence > 0.0 and self.threads >= 0):
+            raise ValueError(f"invalid {self}")
+
+    def kiss(self) -> KISSConfig:
+        """The same settings as kiss-icp's configuration."""
+        return KISSConfig(
+            data=DataConfig(max_range=self.max_range_m, min_range=self.min_range_m, deskew=False),
+            mapping=MappingConfig(voxel_size=self.voxel_size_m, max_points_per_voxel=self.max_points_per_voxel),
+            registration=RegistrationConfig(max_num_iterations=self.max_iterations,
+                                            convergence_criterion=self.convergence,
+                                            max_num_threads=self.threads),
+            adaptive_threshold=AdaptiveThresholdConfig(fixed_threshold=self.fixed_threshold_m,
+                                                       initial_threshold=self.initial_threshold_m,
+                                                       min_motion_th=self.min_motion_m),
+        )
+
+
+@dataclass(frozen=True)
+class WearerFilter:
+    """The wearer's own returns: points nearer the sensor than ``near_m`` (an arm swung out: the rig's wearer
+    returns up to 0.7 m away, nothing else comes that close), and points within ``radius_m`` of the body's axis,
+    from ``below_m`` under the pelvis (the feet and the ground they stand on) to ``above_m`` over it, the body
+    placed with the nominal mounting."""
+
+    mount: HipMountPrior = HipMountPrior()
+    near_m: float = 0.9
+    radius_m: float = 0.55
+    below_m: float = 1.2
+    above_m: float = 1.0
+
+    def keep(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: the points (N, 3) in L that are not the wearer."""
+        up = self.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])  # the body's axis (M's y) in L
+        d = points - self.mount.pelvis_in_lidar
+        along = d @ up
+        radial = np.linalg.norm(d - along[:, None] * up, axis=1)
+        body = (radial < self.radius_m) & (along > -self.below_m) & (along < self.above_m)
+        return ~body & (np.einsum("na,na->n", points, points) >= self.near_m**2)
+
+
+@dataclass(frozen=True)
+class OdometryStep:
+    """One registered sweep: its reference time, the pose T_O_L (4, 4), the deskewed points used (in L at the
+    reference time), how many took part in the registration, the kiss-icp threshold (m), how far the
+    registration moved the initial guess (m, rad) and whether that was too far to believe (the guess kept)."""
+
+    stamp_ns: int
+    pose: np.ndarray
+    points: np.ndarray
+    source_points: int
+    threshold_m: float
+    correction_m: float
+    correction_rad: float
+    rejected: bool = False
+
+
+def _se3(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = rotation, translation
+    return out
+
+
+class LidarOdometry:
+    """Online LiDAR odometry and mapping; sweeps go to :meth:`register` in time order."""
+
+    def __init__(self, config: OdometryConfig | None = None, wearer: WearerFilter | None = None) -> None:
+        self.config = config or OdometryConfig()
+        self.wearer = wearer or WearerFilter()
+        kiss = self.config.kiss()
+        self._registration = get_registration(kiss)
+        self._map = get_voxel_hash_map(kiss)
+        self._threshold = get_threshold_estimator(kiss)
+        self.pose = np.eye(4)  #: T_O_L of the last sweep
+        self._delta = np.eye(4)  # the last sweep-to-sweep motion, T_Lprev_L
+        self._delta_s = 0.0  # ... and how long it took
+        self._stamp_ns: int | None = None
+
+    def map_points(self) -> np.ndarray:
+        """(M, 3) the local map's points in O."""
+        return self._map.point_cloud()
+
+    def _rotations(self, point_ns: np.ndarray, stamp_ns: int, rotation: SweepRotation | None) -> np.ndarray:
+        """R_Lref_L (N, 3, 3) at the points' times: from ``rotation`` where it knows them, else at the constant
+        rate of the last sweep-to-sweep rotation."""
+        tau = (point_ns - stamp_ns) * 1e-9
+        rate = matrix_to_axis_angle(self._delta[:3, :3]) / self._delta_s if self._delta_s > 0.0 else np.zeros(3)
+        out = axis_angle_to_matrix(tau[:, None] * rate)
+        if rotation is not None:
+            given = rotation(point_ns, stamp_ns)
+            known = np.isfinite(given).all(axis=(1, 2))
+            out[known] = given[known]
+        return out
+
+    def deskew(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int,
+               rotation: SweepRotation | None = None) -> np.ndarray:
+        """(N, 3) points seen at their own times ``point_ns`` moved to the sensor frame at ``stamp_ns``: rotated
+        as the sensor turned (``rotation``, or the constant-velocity model) and shifted at the last velocity.
+        The rotations are found once per distinct time (a column fires all its beams at once)."""
+        velocity = self._delta[:3, 3] / self._delta_s if self._delta_s > 0.0 else np.zeros(3)
+        times, which = np.unique(point_ns, return_inverse=True)
+        rot = self._rotations(times, stamp_ns, rotation)
+        moved = np.einsum("nab,nb->na", rot[which], points)
+        return moved + ((times[which] - stamp_ns) * 1e-9)[:, None] * velocity
+
+    def register(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int,
+                 rotation: SweepRotation | None = None) -> OdometryStep:
+        """Register one sweep: ``points`` (N, 3) in L, each seen at ``point_ns`` (N,), posed at ``stamp_ns`` (the
+        sweep's reference time); ``rotation`` the sensor's rotation over time from the IMU, if known."""
+        c = self.config
+        points = np.asarray(points, dtype=np.float64)
+        point_ns = np.asarray(point_ns, dtype=np.int64)
+        rng = np.linalg.norm(points, axis=1)
+        keep = (rng >= c.min_range_m) & (rng <= c.max_range_m) & self.wearer.keep(points)
+        frame = self.deskew(points[keep], point_ns[keep], stamp_ns, rotation)
+        dt = 0.0 if self._stamp_ns is None else (stamp_ns - self._stamp_ns) * 1e-9
+        turn = self._delta[:3, :3]
+        if self._delta_s > 0.0:  # constant velocity, scaled to this sweep's interval
+            turn = axis_angle_to_matrix(matrix_to_axis_angle(turn) * dt / self._delta_s)
+        if rotation is not None and self._stamp_ns is not None:
+            given = rotation(np.array([stamp_ns], dtype=np.int64), self._stamp_ns)[0]
+            turn = given if np.isfinite(given).all() else turn
+        shift = self._delta[:3, 3] * (dt / self._delta_s) if self._delta_s > 0.0 else np.zeros(3)
+        guess = self.pose @ _se3(turn, shift)
+        frame_down = voxel_down_sample(frame, 0.5 * c.voxel_size_m)
+        source = voxel_down_sample(frame_down, 1.5 * c.voxel_size_m)
+        sigma = float(self._threshold.get_threshold())
+        if self._map.empty():
+            pose = guess
+        else:
+            pose = np.asarray(self._registration.align_points_to_map(
+                points=source, voxel_map=self._map, initial_guess=guess, max_correspondance_distance=3.0 * sigma,
+                kernel=sigma))
+        deviation = np.linalg.inv(guess) @ pose
+        correction_m = float(np.linalg.norm(deviation[:3, 3]))
+        rejected = correction_m > c.max_correction_m
+        if rejected:
+            pose = guess
+        self._threshold.update_model_deviation(deviation)
+        self._map.update(frame_down, pose)
+        if self._stamp_ns is not None:
+            self._delta, self._delta_s = np.linalg.inv(self.pose) @ pose, dt
+        self.pose, self._stamp_ns = pose, stamp_ns
+        return OdometryStep(stamp_ns, pose, frame, len(source), sigma, correction_m,
+                            float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected)

@@ -1,0 +1,59 @@
+"""The hip LiDAR's rotation over a sweep from the suit's pelvis IMU (the odometry's deskew and initial guess),
+ROS-free.
+
+The LiDAR is rigid to the pelvis: R_I_L(t) = R_I_M(t) R_M_L, with R_I_M the
+pelvis segment's orientation the suit reports (in its inertial frame I) and
+R_M_L the mounting. Between two times only the relative rotation matters,
+R_Lref_L(t) = R_I_L(ref)^T R_I_L(t), so I's unknown heading cancels, and an
+error of the mounting only turns the rotation axis a little. The suit's
+samples are stamped on its own clock: they are used once the offset is known
+(:meth:`PelvisRotation.set_offset`, from the jump), interpolated by slerp in a
+bounded buffer (:class:`lip_ros.core.imu_sync.ImuSynchronizer`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lip_ros.core.imu_sync import ImuSampleLike, ImuSynchronizer, SyncConfig
+from lip_ros.core.rotations import quat_to_matrix
+
+__all__ = ["PelvisRotation"]
+
+_PELVIS = "pelvis"
+
+
+class PelvisRotation:
+    """The suit's pelvis orientations, buffered (``capacity`` samples), as the LiDAR's rotation over time once
+    the suit's clock offset is set; use an instance as :data:`lip_ros.hsc4d.lidar_odometry.SweepRotation`."""
+
+    def __init__(self, R_M_L: np.ndarray, capacity: int = 512, max_gap_ns: int = 50_000_000) -> None:
+        self.R_M_L = np.asarray(R_M_L, dtype=np.float64)
+        self._sync = ImuSynchronizer([_PELVIS], SyncConfig(capacity=capacity, max_gap_ns=max_gap_ns))
+        self.offset_ns: int | None = None
+
+    def set_offset(self, offset_ns: int) -> None:
+        """The suit's clock is ``offset_ns`` ahead of the LiDAR's (suit stamp = LiDAR stamp + offset)."""
+        self._sync.set_latency(_PELVIS, int(offset_ns))
+        self.offset_ns = int(offset_ns)
+
+    def add(self, sample: ImuSampleLike) -> str | None:
+        """One pelvis sample (stamped on the suit's clock); why it was rejected, None if kept."""
+        return self._sync.add(_PELVIS, sample)
+
+    def rotation_of_lidar(self, t_ns: np.ndarray) -> np.ndarray:
+        """R_I_L (N, 3, 3) at LiDAR-clock times ``t_ns`` (N,); NaN where the buffer does not bracket them or the
+        offset is not known."""
+        t = np.asarray(t_ns, dtype=np.int64)
+        out = np.full((t.size, 3, 3), np.nan)
+        if self.offset_ns is None:
+            return out
+        quat = self._sync.orientations(_PELVIS, t + self.offset_ns)  # asked at the stamps the suit would give
+        ok = np.isfinite(quat).all(axis=1)
+        out[ok] = quat_to_matrix(quat[ok]) @ self.R_M_L
+        return out
+
+    def __call__(self, t_ns: np.ndarray, ref_ns: int) -> np.ndarray:
+        """R_Lref_L (N, 3, 3): the LiDAR at ``t_ns`` in the LiDAR at ``ref_ns``; NaN where unknown."""
+        rot = self.rotation_of_lidar(np.append(np.asarray(t_ns, dtype=np.int64), ref_ns))
+        return np.einsum("ba,nbc->nac", rot[-1], rot[:-1])
