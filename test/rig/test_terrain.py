@@ -71,7 +71,7 @@ def test_a_horizontal_ray_hits_the_first_wall_and_the_sky_is_empty(terrain):
     caster = MeshRaycaster(terrain.triangles())
     lay = terrain.layout
     # straight up from 1 m above the terrace: nothing up there but sky
-    dist, tri = caster.cast(np.array([[lay["terrace_x_m"] + 2.0, -19.5, lay["terrace_height_m"] + 1.0]]),
+    dist, tri = caster.cast(np.array([[lay["terrace_x_m"] + 2.0, -18.5, lay["terrace_height_m"] + 1.0]]),
                             np.array([[0.0, 0.0, 1.0]]))
     assert np.isinf(dist[0]) and tri[0] == -1
     # eastwards 0.1 m above the ground, in the stair band: the first riser's face, where the flight starts
@@ -133,12 +133,17 @@ def test_a_moving_sensor_sees_each_column_from_its_own_pose():
     start_rot, start_pos = poses(np.array([START_NS]))
     unskewed = xyz @ start_rot[0].T + start_pos[0]
     ok = np.isfinite(xyz[..., 0])
-    ground = ok & (world[..., 2] < 0.3)
+    b = terrain.blocks
+    at_obstacle = np.zeros(model.shape, dtype=bool)  # the feet of crates, walls and pillars, below 0.3 m too
+    for i in np.flatnonzero(~b.walkable):
+        local = (world[..., :2] - b.centre[i, :2]) @ b.rotation[i][:2, :2]
+        at_obstacle |= np.all(np.abs(local) < b.half[i, :2] + 0.05, axis=-1)
+    ground = ok & (world[..., 2] < 0.3) & ~at_obstacle
     assert ok.mean() > 0.4 and ground.sum() > 5000
     err = np.abs(world[ground][:, 2] - terrain.surface_height(world[ground][:, :2]))
     err_unskewed = np.nan_to_num(np.abs(unskewed[ground][:, 2] - terrain.surface_height(unskewed[ground][:, :2])),
                                  nan=np.inf)  # off the site
-    assert np.percentile(err, 95) < 0.02  # the rest: the feet of crates, walls and pillars, below 0.3 m too
+    assert np.percentile(err, 95) < 0.02
     late = (np.broadcast_to(model.column_t_ns, model.shape)[ground] > 0.08e9)
     assert np.median(err_unskewed[late]) > 5.0 * np.median(err[late])
 
