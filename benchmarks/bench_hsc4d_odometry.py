@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,14 +27,6 @@ from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 
-@dataclass
-class _Sample:
-    stamp_ns: int
-    quat: np.ndarray
-    gyro: np.ndarray
-    accel: np.ndarray
-
-
 def run(seed: int, seconds: float, columns: int, imu: bool) -> dict:
     """One capture: estimated and true sensor positions (N, 3) in the first sweep's frame, errors, times."""
     capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=seconds, columns=columns))
@@ -43,8 +34,8 @@ def run(seed: int, seconds: float, columns: int, imu: bool) -> dict:
     if imu:
         pelvis = capture.suit_streams()["pelvis"]
         rotation = PelvisRotation(HipMountPrior().R_M_L, capacity=len(pelvis.stamp_ns))
-        for k in range(len(pelvis.stamp_ns)):
-            rotation.add(_Sample(int(pelvis.stamp_ns[k]), pelvis.quat[k], pelvis.gyro[k], pelvis.accel[k]))
+        for sample in pelvis.samples("mocap_pelvis"):
+            rotation.add(sample)
         rotation.set_offset(int(round(capture.suit.clock_offset_s * 1e9)))
     odometry = LidarOdometry()
     half = capture.lidar.period_ns // 2

@@ -22,12 +22,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from lip_msgs_py import (
-    RosbagsBackend,
-    array_to_cloud,
-    imu_sample,
-    imu_to_msg,
-)
+from lip_msgs_py import RosbagsBackend, array_to_cloud, imu_to_msg
 from lip_ros.bagio import RELIABLE_QOS, SENSOR_QOS, mcap_writer
 from lip_ros.lip.sensors import LIDAR_TOPIC
 from lip_ros.outputs import GT_TOPICS, pose_messages
@@ -118,11 +113,8 @@ def write_capture_bag(
     with mcap_writer(out, zstd=True) as writer:
         log = LogOrderWriter(writer, backend)
         for s in session.imu_streams().values():
-            frame_id = f"dot_{s.name}"
-            for k in range(len(s.stamp_ns)):
-                sample = imu_sample(int(s.stamp_ns[k]), frame_id, s.quat[k], s.gyro[k], s.accel[k])
-                log.push(int(s.stamp_ns[k]) + IMU_LATENCY_NS, s.topic, imu_to_msg(backend, sample),
-                         "sensor_msgs/msg/Imu")
+            for sample in s.samples(f"dot_{s.name}"):
+                log.push(sample.stamp_ns + IMU_LATENCY_NS, s.topic, imu_to_msg(backend, sample), "sensor_msgs/msg/Imu")
         period = session.lidar.period_ns
         for cf in session.frames():
             stamp = cf.stamp_ns

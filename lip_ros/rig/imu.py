@@ -24,11 +24,13 @@ arrival order.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.signal import lfilter
 
+from lip_msgs_py import ImuSample, imu_sample
 from lip_ros.core.frames import GRAVITY
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_quat, rot_z
 from lip_ros.core.skeleton import Skeleton
@@ -211,6 +213,11 @@ class ImuStream:
     index: np.ndarray
     R_L_B_true: np.ndarray
     acc_L_true: np.ndarray
+
+    def samples(self, frame_id: str) -> Iterator[ImuSample]:
+        """The published samples as validated :class:`lip_msgs_py.ImuSample` in ``frame_id``."""
+        for k in range(len(self.stamp_ns)):
+            yield imu_sample(int(self.stamp_ns[k]), frame_id, self.quat[k], self.gyro[k], self.accel[k])
 
 
 def _random_rotation(max_angle: float, rng: np.random.Generator) -> np.ndarray:

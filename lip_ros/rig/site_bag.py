@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from lip_msgs_py import RosbagsBackend, array_to_cloud, imu_sample, imu_to_msg, odometry_to_msg
+from lip_msgs_py import RosbagsBackend, array_to_cloud, imu_to_msg, odometry_to_msg
 from lip_ros.bagio import mcap_writer
 from lip_ros.core.rotations import matrix_to_quat
 from lip_ros.outputs import GT_TOPICS, pose_messages
@@ -72,11 +72,9 @@ def write_site_bag(capture: SiteCapture, out: Path, progress: bool = True) -> di
     with mcap_writer(out, zstd=True) as writer:
         log = LogOrderWriter(writer, backend)
         for s in capture.suit_streams().values():
-            frame_id = f"mocap_{s.name}"
-            for k in range(len(s.stamp_ns)):
-                stamp = int(s.stamp_ns[k])
-                msg = imu_to_msg(backend, imu_sample(stamp, frame_id, s.quat[k], s.gyro[k], s.accel[k]))
-                log.push(stamp - offset_ns + SUIT_LATENCY_NS, s.topic, msg, "sensor_msgs/msg/Imu")
+            for sample in s.samples(f"mocap_{s.name}"):  # received on the LiDAR's clock
+                log.push(sample.stamp_ns - offset_ns + SUIT_LATENCY_NS, s.topic, imu_to_msg(backend, sample),
+                         "sensor_msgs/msg/Imu")
         for k in range(len(odometry.stamp_ns)):
             stamp = int(odometry.stamp_ns[k])
             msg = odometry_to_msg(backend, stamp, SUIT_WORLD_FRAME, "mocap_pelvis", odometry.position[k],

@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pytest
 
@@ -14,14 +12,6 @@ from lip_ros.hsc4d.mount import HipMountPrior
 from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
 from lip_ros.rig.imu import ImuNoise, simulate_imus
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
-
-
-@dataclass
-class _Sample:
-    stamp_ns: int
-    quat: np.ndarray
-    gyro: np.ndarray
-    accel: np.ndarray
 
 
 def _cloud(frame) -> tuple[np.ndarray, np.ndarray]:
@@ -41,8 +31,8 @@ def _pelvis_rotation(capture: SiteCapture, R_M_L: np.ndarray, noise: ImuNoise | 
                                np.random.default_rng(0))["pelvis"]
         stream.stamp_ns = stream.stamp_ns + capture.epoch_ns
     rotation = PelvisRotation(R_M_L, capacity=len(stream.stamp_ns))
-    for k in range(len(stream.stamp_ns)):
-        rotation.add(_Sample(int(stream.stamp_ns[k]), stream.quat[k], stream.gyro[k], stream.accel[k]))
+    for sample in stream.samples("mocap_pelvis"):
+        rotation.add(sample)
     rotation.set_offset(int(round(capture.suit.clock_offset_s * 1e9)))
     return rotation
 
