@@ -178,7 +178,10 @@ class LidarOdometry:
     def register(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int,
                  rotation: SweepRotation | None = None) -> OdometryStep:
         """Register one sweep: ``points`` (N, 3) in L, each seen at ``point_ns`` (N,), posed at ``stamp_ns`` (the
-        sweep's reference time); ``rotation`` the sensor's rotation over time from the IMU, if known."""
+        sweep's reference time); ``rotation`` the sensor's rotation over time from the IMU, if known. A sweep
+        with no points keeps the predicted pose; one not after the last is refused (ValueError)."""
+        if self._stamp_ns is not None and stamp_ns <= self._stamp_ns:
+            raise ValueError(f"sweep at {stamp_ns} ns is not after the last one ({self._stamp_ns} ns)")
         c = self.config
         points = np.asarray(points, dtype=np.float64)
         point_ns = np.asarray(point_ns, dtype=np.int64)

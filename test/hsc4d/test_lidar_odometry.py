@@ -94,6 +94,17 @@ def test_deskewing_with_the_true_rotation_undoes_the_sweeps_distortion():
     np.testing.assert_allclose(deskewed, world, atol=1e-9)
 
 
+def test_an_empty_sweep_keeps_the_prediction_and_time_must_go_forward():
+    """No points: the predicted pose, nothing registered; a sweep not after the last one: refused."""
+    odometry = LidarOdometry()
+    points = np.random.default_rng(0).uniform(-10.0, 10.0, (5000, 3))
+    odometry.register(points, np.full(5000, 1_000), 1_000)
+    step = odometry.register(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), 100_001_000)
+    assert step.source_points == 0 and np.allclose(step.pose, np.eye(4))
+    with pytest.raises(ValueError, match="not after"):
+        odometry.register(points, np.full(5000, 1_000), 100_001_000)
+
+
 def _run(capture: SiteCapture, rotation: PelvisRotation | None) -> tuple[np.ndarray, np.ndarray]:
     """Odometry over the whole capture: translation error (m) and rotation error (deg) per sweep, against the
     truth expressed in the first sweep's sensor frame."""
