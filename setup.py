@@ -27,6 +27,7 @@ CORE = [
     "matplotlib>=3.8,<4",
     "embreex>=4.4,<5",  # ray casting of the HSC4D rig's scenes (lip_ros.rig.mesh_raycast)
     "kiss-icp==1.3.0",  # the HSC4D LiDAR odometry's registration core (lip_ros.hsc4d.lidar_odometry)
+    "gtsam==4.3.0",  # the HSC4D trajectory's pose graph (lip_ros.hsc4d.pose_graph)
 ]
 TEST = [
     "pytest>=8,<10",
@@ -65,6 +66,7 @@ setup(
             "lip_rig = lip_ros.tools.rig:main",
             "lip_train = lip_ros.tools.lip_train:main",
             "lip_eval = lip_ros.tools.lip_eval:main",
+            "hsc4d_eval = lip_ros.tools.hsc4d_eval:main",
             "lip_bag_play = lip_ros.tools.bag_play:main",
             "lip_bag_record = lip_ros.tools.bag_record:main",
             "lip_process_bag = lip_ros.tools.process_bag:main",

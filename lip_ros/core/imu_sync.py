@@ -412,6 +412,19 @@ class ImuSynchronizer:
             quat[ok] = _slerp(rows[lo[ok], _QUAT], rows[hi[ok], _QUAT], _weights(stamps, t, lo, hi, ok))
         return quat
 
+    def specific_forces(self, name: str, stamp_ns: np.ndarray) -> np.ndarray:
+        """Specific force (T, 3) in the sensor frame of ``name`` interpolated linearly at the measurement times of
+        samples stamped ``stamp_ns`` (T,), NaN where the buffer does not bracket them (nothing is held)."""
+        stamps, rows = self._buffers[name].stamps, self._buffers[name].rows
+        t = np.asarray(stamp_ns, dtype=np.int64) - self._latency_ns[name]
+        out = np.full((t.size, 3), np.nan)
+        if stamps.size:
+            before, after, ok = _bracket(stamps, t, self.config)
+            lo, hi = np.maximum(before, 0), np.minimum(after, stamps.size - 1)
+            w = _weights(stamps, t, lo, hi, ok)[:, None]
+            out[ok] = (1.0 - w) * rows[lo[ok], _ACCEL] + w * rows[hi[ok], _ACCEL]
+        return out
+
     def insert(self, name: str, stamp_ns: int, row: np.ndarray, code: int) -> str | None:
         """Buffer one sample of sensor ``name`` validated by :meth:`validate` at its measurement time
         (:meth:`measured_ns`); why it was rejected, None if kept."""

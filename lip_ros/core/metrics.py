@@ -23,6 +23,7 @@ __all__ = [
     "surface_chamfer",
     "jitter",
     "icp_translation",
+    "align_yaw_translation",
 ]
 
 
@@ -103,3 +104,22 @@ def icp_translation(points: np.ndarray, surface: np.ndarray, iterations: int = 8
         if np.linalg.norm(step) < tol:
             break
     return t
+
+
+def align_yaw_translation(estimate: np.ndarray, truth: np.ndarray, fit: np.ndarray | slice = slice(None)
+                          ) -> np.ndarray:
+    """T (4, 4): the rotation about z and the translation that best map ``estimate`` (N, 3) onto ``truth`` (N, 3)
+    over the points ``fit`` (least squares; the 4-DoF alignment of a gravity-aligned trajectory, whose yaw and
+    origin are arbitrary). Apply it to the whole estimate: drift outside ``fit`` is not forgiven."""
+    a, b = np.asarray(estimate, dtype=np.float64)[fit], np.asarray(truth, dtype=np.float64)[fit]
+    if len(a) < 2:
+        raise ValueError("a yaw and translation alignment needs at least two points")
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    u, v = a[:, :2] - ca[:2], b[:, :2] - cb[:2]
+    yaw = np.arctan2(np.sum(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]), np.sum(u[:, 0] * v[:, 0] + u[:, 1] * v[:, 1]))
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = cb - T[:3, :3] @ ca
+    return T
+

@@ -14,10 +14,16 @@ Per sweep (:meth:`LidarOdometry.register`):
    translation at the last velocity;
 3. voxel subsampling, then frame-to-map point-to-point ICP (kiss-icp's robust
    registration, here with a fixed threshold) from an initial guess that takes
-   the rotation from the IMU when given; a registration that moves the guess
-   farther than ``max_correction_m`` is not believed (the guess is kept, and
-   the step says so); the map is kiss-icp's voxel hash map of deskewed points,
-   bounded by ``max_range_m`` round the sensor.
+   the rotation from the IMU when given and the horizontal translation from the
+   suit's own odometry when given (``suit``: its relative motion over a sweep
+   is good; it does not know stairs), the vertical from the last velocity
+   carried on by the IMU's vertical acceleration when given (``vertical``: a
+   jump's take-off and landing); a registration is not believed (the guess is kept, and the step
+   says why) when it moves the guess farther than ``max_correction_m``, or when
+   its horizontal motion differs from the suit's by more than ``speed_ratio - 1``
+   times the suit's plus ``speed_floor_mps`` (the paper's speed rule, online,
+   before a sliding registration reaches the map); the map is kiss-icp's voxel
+   hash map of deskewed points, bounded by ``max_range_m`` round the sensor.
 
 Poses are of the sensor frame L at the reference times, in the odometry frame
 O (L at the first sweep's reference time).
@@ -37,13 +43,18 @@ from kiss_icp.threshold import get_threshold_estimator
 from kiss_icp.voxelization import voxel_down_sample
 
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from lip_ros.hsc4d.mount import HipMountPrior
+from lip_ros.hsc4d.mount import HipMountPrior, rotation_between
+from lip_ros.hsc4d.suit_track import SuitTrack
 
-__all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "OdometryStep", "LidarOdometry"]
+__all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "VerticalShift", "OdometryStep", "LidarOdometry"]
 
 #: ``rotation(t_ns, ref_ns)``: the sensor frame at times ``t_ns`` (N,) in the sensor frame at ``ref_ns``,
 #: R_Lref_L (N, 3, 3); NaN where unknown.
 SweepRotation = Callable[[np.ndarray, int], np.ndarray]
+
+#: ``vertical(v_ns, v_mps, t0_ns, t1_ns)``: how far the sensor rises from ``t0_ns`` to ``t1_ns`` (m) if its
+#: vertical velocity was ``v_mps`` at ``v_ns`` (e.g. the pelvis IMU's acceleration integrated); None if unknown.
+VerticalShift = Callable[[int, float, int, int], "float | None"]
 
 
 @dataclass(frozen=True)
@@ -63,6 +74,14 @@ class OdometryConfig:
     # is kept): with the IMU's rotation a sweep's guess is good to a few cm, and a jump of decimetres is ICP
     # sliding along a direction the scene does not pin down
     max_correction_m: float = 0.3
+    # with the suit: a registration whose horizontal motion differs from the suit's by more than (speed_ratio - 1)
+    # times the suit's speed plus speed_floor_mps is not believed (the paper marks LiDAR poses faster than 1.2-2x
+    # the IMU's as outliers; a difference also catches sliding backwards or sideways)
+    speed_ratio: float = 1.5
+    speed_floor_mps: float = 0.3
+    # with gravity known in O (set_gravity) and the suit: each pose's tilt is turned this fraction of the way to the
+    # suit's gravity (ICP's attitude drifts by a degree over a walk; the suit's tilt is good to a few tenths)
+    gravity_gain: float = 0.1
     min_motion_m: float = 0.1  # [adaptive_threshold.min_motion_th]
     max_iterations: int = 500  # [registration.max_num_iterations]
     convergence: float = 1e-4  # [registration.convergence_criterion]
@@ -71,7 +90,8 @@ class OdometryConfig:
     def __post_init__(self) -> None:
         if not (0.0 < self.voxel_size_m and 0.0 <= self.min_range_m < self.max_range_m
                 and self.max_points_per_voxel > 0 and self.initial_threshold_m > 0.0 and self.max_iterations > 0
-                and self.convergence > 0.0 and self.threads >= 0):
+                and self.convergence > 0.0 and self.threads >= 0 and self.speed_ratio >= 1.0
+                and self.speed_floor_mps >= 0.0 and 0.0 <= self.gravity_gain <= 1.0):
             raise ValueError(f"invalid {self}")
 
     def kiss(self) -> KISSConfig:
@@ -115,7 +135,9 @@ class WearerFilter:
 class OdometryStep:
     """One registered sweep: its reference time, the pose T_O_L (4, 4), the deskewed points used (in L at the
     reference time), how many took part in the registration, the kiss-icp threshold (m), how far the
-    registration moved the initial guess (m, rad) and whether that was too far to believe (the guess kept)."""
+    registration moved the initial guess (m, rad), why the registration was not believed ("" if it was; the
+    guess kept), whether the guess's translation came from the suit, and how far the pose's up was from the
+    suit's gravity before it was turned toward it (deg; NaN without gravity)."""
 
     stamp_ns: int
     pose: np.ndarray
@@ -124,7 +146,9 @@ class OdometryStep:
     threshold_m: float
     correction_m: float
     correction_rad: float
-    rejected: bool = False
+    rejected: str = ""
+    suit_guided: bool = False
+    tilt_deg: float = float("nan")
 
 
 def _se3(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
@@ -147,6 +171,11 @@ class LidarOdometry:
         self._delta = np.eye(4)  # the last sweep-to-sweep motion, T_Lprev_L
         self._delta_s = 0.0  # ... and how long it took
         self._stamp_ns: int | None = None
+        self.gravity: np.ndarray | None = None  #: gravity's up in O, once known
+
+    def set_gravity(self, up: np.ndarray) -> None:
+        """Gravity's up (3,) in the odometry frame O: from now on each pose's tilt is pulled toward the suit's."""
+        self.gravity = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
 
     def map_points(self) -> np.ndarray:
         """(M, 3) the local map's points in O."""
@@ -176,10 +205,12 @@ class LidarOdometry:
         return moved + ((times[which] - stamp_ns) * 1e-9)[:, None] * velocity
 
     def register(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int,
-                 rotation: SweepRotation | None = None) -> OdometryStep:
+                 rotation: SweepRotation | None = None, suit: SuitTrack | None = None,
+                 vertical: VerticalShift | None = None) -> OdometryStep:
         """Register one sweep: ``points`` (N, 3) in L, each seen at ``point_ns`` (N,), posed at ``stamp_ns`` (the
-        sweep's reference time); ``rotation`` the sensor's rotation over time from the IMU, if known. A sweep
-        with no points keeps the predicted pose; one not after the last is refused (ValueError)."""
+        sweep's reference time); ``rotation`` the sensor's rotation over time from the IMU, ``suit`` the suit's
+        own odometry and ``vertical`` the IMU's vertical motion, if known. A sweep with no points keeps the
+        predicted pose; one not after the last is refused (ValueError)."""
         if self._stamp_ns is not None and stamp_ns <= self._stamp_ns:
             raise ValueError(f"sweep at {stamp_ns} ns is not after the last one ({self._stamp_ns} ns)")
         c = self.config
@@ -196,6 +227,17 @@ class LidarOdometry:
             given = rotation(np.array([stamp_ns], dtype=np.int64), self._stamp_ns)[0]
             turn = given if np.isfinite(given).all() else turn
         shift = self._delta[:3, 3] * (dt / self._delta_s) if self._delta_s > 0.0 else np.zeros(3)
+        suit_motion = None
+        if suit is not None and self._stamp_ns is not None:
+            suit_motion = suit.horizontal_motion(self._stamp_ns, stamp_ns)
+        if suit_motion is not None:  # the suit's horizontal motion, the last velocity's vertical
+            horizontal, up = suit_motion
+            rise = float(shift @ up)
+            if vertical is not None and self._delta_s > 0.0:  # ... carried on by the IMU's acceleration
+                v_up = float(self._delta[:3, :3].T @ self._delta[:3, 3] @ up) / self._delta_s
+                carried = vertical(self._stamp_ns - int(self._delta_s * 5e8), v_up, self._stamp_ns, stamp_ns)
+                rise = rise if carried is None else carried
+            shift = horizontal + rise * up
         guess = self.pose @ _se3(turn, shift)
         frame_down = voxel_down_sample(frame, 0.5 * c.voxel_size_m)
         source = voxel_down_sample(frame_down, 1.5 * c.voxel_size_m)
@@ -208,13 +250,38 @@ class LidarOdometry:
                 kernel=sigma))
         deviation = np.linalg.inv(guess) @ pose
         correction_m = float(np.linalg.norm(deviation[:3, 3]))
-        rejected = correction_m > c.max_correction_m
+        rejected = ""
+        if correction_m > c.max_correction_m:
+            rejected = f"correction {correction_m:.2f} m > {c.max_correction_m} m"
+        elif suit_motion is not None:
+            rejected = self._speed_rule(np.linalg.inv(self.pose) @ pose, *suit_motion, dt)
         if rejected:
             pose = guess
+        tilt = float("nan")
+        up = None if suit is None or self.gravity is None else suit.up_in_lidar(stamp_ns)
+        if up is not None:  # turn the pose's up (gravity in L) part of the way to the suit's
+            current = pose[:3, :3].T @ self.gravity
+            tilt = float(np.degrees(np.arccos(np.clip(current @ up, -1.0, 1.0))))
+            full = matrix_to_axis_angle(rotation_between(up, current))
+            pose = pose.copy()
+            pose[:3, :3] = pose[:3, :3] @ axis_angle_to_matrix(c.gravity_gain * full)
         self._threshold.update_model_deviation(deviation)
         self._map.update(frame_down, pose)
         if self._stamp_ns is not None:
             self._delta, self._delta_s = np.linalg.inv(self.pose) @ pose, dt
         self.pose, self._stamp_ns = pose, stamp_ns
         return OdometryStep(stamp_ns, pose, frame, len(source), sigma, correction_m,
-                            float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected)
+                            float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected,
+                            suit_motion is not None, tilt)
+
+    def _speed_rule(self, step: np.ndarray, suit_horizontal: np.ndarray, up: np.ndarray, dt: float) -> str:
+        """Why the registered motion ``step`` (T_Lprev_L) is not believed against the suit's horizontal motion over
+        ``dt`` s ("" if it is)."""
+        d = step[:3, 3]
+        horizontal = d - (d @ up) * up
+        differ = float(np.linalg.norm(horizontal - suit_horizontal)) / dt
+        speed = float(np.linalg.norm(suit_horizontal)) / dt
+        allowed = (self.config.speed_ratio - 1.0) * speed + self.config.speed_floor_mps
+        if differ <= allowed:
+            return ""
+        return f"horizontal motion {differ:.2f} m/s off the suit's ({speed:.2f} m/s; allowed {allowed:.2f})"

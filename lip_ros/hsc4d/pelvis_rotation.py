@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lip_ros.core.frames import GRAVITY
 from lip_ros.core.imu_sync import ImuSampleLike, ImuSynchronizer, SyncConfig
 from lip_ros.core.rotations import quat_to_matrix
 
@@ -52,6 +53,28 @@ class PelvisRotation:
         ok = np.isfinite(quat).all(axis=1)
         out[ok] = quat_to_matrix(quat[ok]) @ self.R_M_L
         return out
+
+    def vertical_shift(self, v_ns: int, v_mps: float, t0_ns: int, t1_ns: int, step_ns: int = 5_000_000
+                       ) -> float | None:
+        """How far the pelvis rises from ``t0_ns`` to ``t1_ns`` (LiDAR clock; m) if its vertical velocity was
+        ``v_mps`` at ``v_ns``: the IMU's vertical acceleration (its specific force turned into the suit's
+        gravity-aligned frame, less gravity) integrated twice, in steps of ``step_ns``; None where unknown. Over
+        a sweep or two this is what carries a jump or a stair step that a constant velocity misses."""
+        if self.offset_ns is None:
+            return None
+        start, end = min(v_ns, t0_ns), max(t0_ns, t1_ns)
+        t = np.unique(np.concatenate([np.arange(start, end, step_ns, dtype=np.int64), [v_ns, t0_ns, t1_ns, end]]))
+        stamp = t + self.offset_ns
+        quat = self._sync.orientations(_PELVIS, stamp)
+        force = self._sync.specific_forces(_PELVIS, stamp)
+        if not (np.isfinite(quat).all() and np.isfinite(force).all()):
+            return None
+        up = np.einsum("nab,nb->na", quat_to_matrix(quat), force)[:, 2] - GRAVITY
+        dt = np.diff(t) * 1e-9
+        velocity = np.concatenate([[0.0], np.cumsum(0.5 * (up[1:] + up[:-1]) * dt)])
+        velocity += v_mps - velocity[np.searchsorted(t, v_ns)]
+        height = np.concatenate([[0.0], np.cumsum(0.5 * (velocity[1:] + velocity[:-1]) * dt)])
+        return float(height[np.searchsorted(t, t1_ns)] - height[np.searchsorted(t, t0_ns)])
 
     def __call__(self, t_ns: np.ndarray, ref_ns: int) -> np.ndarray:
         """R_Lref_L (N, 3, 3): the LiDAR at ``t_ns`` in the LiDAR at ``ref_ns``; NaN where unknown."""

@@ -74,6 +74,30 @@ def test_the_pelvis_imu_gives_the_lidars_rotation_over_time():
     assert np.isnan(exact(np.array([capture.epoch_ns + 10**11]), ref)).all()
 
 
+@pytest.mark.parametrize("noise", [False, True])
+def test_the_pelvis_imu_carries_the_height_through_the_jump(noise):
+    """From the true vertical velocity at one sweep's middle, the pelvis IMU's acceleration integrated gives the
+    pelvis's rise to the next sweeps' middles through the jump's crouch, take-off, flight and landing within 1 cm,
+    with and without the suit's noise (measured 5.5 and 5.4 mm), where a constant velocity is off by up to 0.2 m;
+    nothing before the offset."""
+    capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
+    rotation = _pelvis_rotation(capture, HipMountPrior().R_M_L, None if noise else ImuNoise.none())
+    jump = next((start, end) for name, start, end in capture.phases_ns() if name == "jump")
+    mids = np.arange(jump[0] - 200_000_000, jump[1] + 200_000_000, 100_000_000)
+    h = 1e-3
+    t = (mids - capture.epoch_ns) * 1e-9
+    z = capture.truth(t).pelvis[:, 2]
+    vz = (capture.truth(t + h).pelvis[:, 2] - capture.truth(t - h).pelvis[:, 2]) / (2 * h)
+    worst = constant = 0.0
+    for k in range(len(mids) - 2):
+        for j in (k + 1, k + 2):
+            rise = rotation.vertical_shift(int(mids[k]), float(vz[k]), int(mids[k]), int(mids[j]))
+            worst = max(worst, abs(rise - (z[j] - z[k])))
+            constant = max(constant, abs(vz[k] * (t[j] - t[k]) - (z[j] - z[k])))
+    assert worst < 0.01 and constant > 0.15
+    assert PelvisRotation(HipMountPrior().R_M_L).vertical_shift(int(mids[0]), 0.0, int(mids[0]), int(mids[1])) is None
+
+
 def test_deskewing_with_the_true_rotation_undoes_the_sweeps_distortion():
     """A sensor turning at 2 rad/s and moving at 1.5 m/s sees a static scene over 100 ms; deskewed with its true
     rotation and velocity every point is where the sensor at the reference time sees it (1e-9 m)."""

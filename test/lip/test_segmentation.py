@@ -16,10 +16,11 @@ import pytest
 
 from lip_msgs_py import OUSTER_ORIGINAL_DTYPE, RosbagsBackend, array_to_cloud, cloud_to_array
 from lip_ros.core.body import BodyModel
+from lip_ros.core.ground_plane import GroundPlane, fit_ground_plane
 from lip_ros.core.skeleton import forward_kinematics, load_skeleton
 from lip_ros.lip.segmentation import PerformerSegmenter, SegmentationConfig, SegmentationResult, SegmentationStatus
 from lip_ros.lip.segmentation.clusters import describe_clusters, link_components
-from lip_ros.lip.segmentation.scene import BackgroundModel, GroundPlane, fit_ground_plane
+from lip_ros.lip.segmentation.scene import BackgroundModel
 from lip_ros.lip.segmentation.tracking import Track, associate
 from lip_ros.rig.capture import CaptureConfig, CaptureSession
 from lip_ros.rig.lidar import Actor, OusterModel

@@ -6,8 +6,8 @@ import numpy as np
 
 from lip_msgs_py import RclpyBackend, msg_to_pose_stamped
 from lip_ros.core.frames import level_rotation
+from lip_ros.core.ground_plane import GroundPlane
 from lip_ros.core.rotations import quat_to_matrix, rot_x, rot_y
-from lip_ros.lip.segmentation.scene import GroundPlane
 from lip_ros.nodes.lip.ground import describe_level, ground_message
 
 

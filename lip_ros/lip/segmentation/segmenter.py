@@ -63,9 +63,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from lip_ros.core.frames import level_rotation
+from lip_ros.core.ground_plane import GroundPlane, fit_ground_plane
 from lip_ros.core.scan_layout import ScanLayout, destagger, fit_scan_layout
 from lip_ros.lip.segmentation.clusters import Clusters, describe_clusters, link_components
-from lip_ros.lip.segmentation.scene import BackgroundModel, GroundPlane, fit_ground_plane
+from lip_ros.lip.segmentation.scene import BackgroundModel
 from lip_ros.lip.segmentation.tracking import Track, associate
 
 __all__ = ["LOCK_RULES", "SegmentationConfig", "SegmentationStatus", "SegmentationResult", "PerformerSegmenter"]

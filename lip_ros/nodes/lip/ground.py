@@ -20,8 +20,8 @@ from geometry_msgs.msg import PoseStamped
 
 from lip_msgs_py import MalformedMessageError, msg_to_pose_stamped, pose_stamped_to_msg
 from lip_ros.core.frames import level_rotation
+from lip_ros.core.ground_plane import GroundPlane
 from lip_ros.core.rotations import geodesic_angle, matrix_to_quat, quat_to_matrix
-from lip_ros.lip.segmentation.scene import GroundPlane
 from lip_ros.nodes.base import LATCHED, GraphNode, Param
 
 __all__ = ["GROUND_PARAM", "ground_message", "describe_level", "subscribe_ground"]

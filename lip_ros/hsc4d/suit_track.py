@@ -1,0 +1,110 @@
+"""The suit's own root trajectory (``/mocap/odometry``) as the hip LiDAR's motion between two LiDAR-clock times,
+ROS-free.
+
+The suit's dead reckoning drifts in heading and knows nothing of stairs or
+slopes, but over one sweep (50-100 ms) its *relative* motion is good: the
+pelvis's displacement and turn in the pelvis's own frame, T_P0_P1 = T_I_P0^-1
+T_I_P1, where the suit's unknown, drifting heading cancels. The LiDAR, rigid to
+the pelvis with the mounting T_M_L, moved by T_L0_L1 = T_M_L^-1 T_P0_P1 T_M_L.
+The odometry uses it for its initial guess and to refuse registrations that
+disagree with it (the paper's speed rule, :meth:`SuitTrack.horizontal_motion`
+splits off the vertical, which the suit does not know). The samples are
+stamped on the suit's clock and used once its offset from the LiDAR's is known
+(from the jump), in a bounded buffer.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from lip_ros.core.rotations import quat_to_matrix
+from lip_ros.hsc4d.mount import HipMountPrior
+
+__all__ = ["SuitTrack"]
+
+
+class SuitTrack:
+    """The last ``capacity`` suit odometry samples; positions interpolated linearly and orientations by
+    normalised lerp between samples at most ``max_gap_ns`` apart (100 Hz: the turn between two is tiny)."""
+
+    def __init__(self, mount: HipMountPrior | None = None, capacity: int = 1024,
+                 max_gap_ns: int = 50_000_000) -> None:
+        if capacity < 2 or max_gap_ns <= 0:
+            raise ValueError(f"capacity {capacity} and max_gap_ns {max_gap_ns} must be >= 2 and > 0")
+        self.mount = mount or HipMountPrior()
+        self.max_gap_ns = int(max_gap_ns)
+        self._samples: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=capacity)
+        self.offset_ns: int | None = None
+        self.T_M_L = self.mount.T_M_L  #: the mounting used: the nominal one until :meth:`set_mount_rotation`
+        self._T_L_M = self.mount.T_L_M
+
+    def set_mount_rotation(self, R_M_L: np.ndarray) -> None:
+        """Use this sensor rotation in the pelvis frame from now on (e.g. levelled with gravity at the start)."""
+        self.T_M_L = self.T_M_L.copy()
+        self.T_M_L[:3, :3] = R_M_L
+        self._T_L_M = np.linalg.inv(self.T_M_L)
+
+    def set_offset(self, offset_ns: int) -> None:
+        """The suit's clock is ``offset_ns`` ahead of the LiDAR's (suit stamp = LiDAR stamp + offset)."""
+        self.offset_ns = int(offset_ns)
+
+    def add(self, stamp_ns: int, position: np.ndarray, quat: np.ndarray) -> str | None:
+        """One sample on the suit's clock: the pelvis position (3,) and orientation (x, y, z, w) in the suit's
+        world; why it was rejected (not finite, not a unit quaternion, not after the newest), None if kept."""
+        position = np.asarray(position, dtype=np.float64)
+        quat = np.asarray(quat, dtype=np.float64)
+        if not (np.isfinite(position).all() and np.isfinite(quat).all()):
+            return "not finite"
+        norm = float(np.linalg.norm(quat))
+        if abs(norm - 1.0) > 1e-3:
+            return f"quaternion norm {norm:.3g}"
+        if self._samples and stamp_ns <= self._samples[-1][0]:
+            return "not after the newest sample"
+        self._samples.append((int(stamp_ns), position, quat / norm))
+        return None
+
+    def pelvis(self, t_ns: int) -> np.ndarray | None:
+        """T_I_P (4, 4) at the LiDAR-clock time ``t_ns``; None without the offset or two samples around it."""
+        if self.offset_ns is None or len(self._samples) < 2:
+            return None
+        t = int(t_ns) + self.offset_ns
+        stamps = np.fromiter((s[0] for s in self._samples), dtype=np.int64, count=len(self._samples))
+        hi = int(np.searchsorted(stamps, t))
+        if hi == 0 or hi == stamps.size:
+            if hi == 0 and stamps[0] == t:
+                hi = 1
+            else:
+                return None
+        (s0, p0, q0), (s1, p1, q1) = self._samples[hi - 1], self._samples[hi]
+        if s1 - s0 > self.max_gap_ns:
+            return None
+        w = (t - s0) / (s1 - s0)
+        q = (1.0 - w) * q0 + w * (q1 if q0 @ q1 >= 0.0 else -q1)
+        out = np.eye(4)
+        out[:3, :3] = quat_to_matrix(q / np.linalg.norm(q))
+        out[:3, 3] = (1.0 - w) * p0 + w * p1
+        return out
+
+    def lidar_motion(self, t0_ns: int, t1_ns: int) -> np.ndarray | None:
+        """T_L0_L1 (4, 4): the LiDAR at ``t1_ns`` in the LiDAR at ``t0_ns`` as the suit has it; None if unknown."""
+        a, b = self.pelvis(t0_ns), self.pelvis(t1_ns)
+        if a is None or b is None:
+            return None
+        return self._T_L_M @ np.linalg.inv(a) @ b @ self.T_M_L
+
+    def up_in_lidar(self, t_ns: int) -> np.ndarray | None:
+        """(3,) gravity's up in the LiDAR frame at ``t_ns`` (the suit's z, through the mounting); None if
+        unknown."""
+        a = self.pelvis(t_ns)
+        return None if a is None else self._T_L_M[:3, :3] @ a[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+
+    def horizontal_motion(self, t0_ns: int, t1_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The LiDAR's displacement from ``t0_ns`` to ``t1_ns`` in the LiDAR frame at ``t0_ns``, with its vertical
+        part removed, and that frame's up (3,) each; None if unknown."""
+        motion, up = self.lidar_motion(t0_ns, t1_ns), self.up_in_lidar(t0_ns)
+        if motion is None or up is None:
+            return None
+        d = motion[:3, 3]
+        return d - (d @ up) * up, up

@@ -1,0 +1,318 @@
+"""The HSC4D branch's pelvis trajectory, live: jump sync, LiDAR odometry with the suit, the ``map`` frame and the
+pose graph, in one object the nodes and the batch tools share (ROS-free).
+
+:class:`TrajectoryPipeline` takes the suit's pelvis IMU
+(:meth:`~TrajectoryPipeline.add_pelvis_imu`), the suit's own odometry
+(:meth:`~TrajectoryPipeline.add_suit_odometry`) and the hip LiDAR's sweeps
+(:meth:`~TrajectoryPipeline.add_sweep`), each on its own clock, and:
+
+1. **until the jump** has been seen by both (:mod:`~lip_ros.hsc4d.jump_sync`;
+   the LiDAR's height from each sweep's ground alone,
+   :mod:`~lip_ros.hsc4d.sweep_height`), holds the sweeps (at most ``hold_s``;
+   older ones are dropped and counted) and outputs nothing;
+2. once the suit's clock offset is known, registers the held sweeps and then
+   each new one (:mod:`~lip_ros.hsc4d.lidar_odometry` with the pelvis IMU's
+   rotation and the suit's motion, whose speed rule marks the registrations not
+   believed);
+3. after ``map_after_s`` of registered capture (the still A-pose), fixes the
+   ``map`` frame from the ground under the wearer (:mod:`~lip_ros.hsc4d.map_frame`),
+   levels the mounting with it (:func:`~lip_ros.hsc4d.mount.levelled_mount_rotation`:
+   the ground's up in the LiDAR against the suit's in the pelvis) and from then
+   on keeps the odometry's tilt on the suit's gravity; while walking, turns the
+   mounting about the body's axis as the LiDAR's steps show
+   (:class:`~lip_ros.hsc4d.mount.MountYawEstimator`);
+4. fuses each sweep in the live pose graph (:mod:`~lip_ros.hsc4d.pose_graph`):
+   the believed registrations as landmarks, the suit's motion between sweeps
+   as between factors, with the odometry's vertical (the suit knows no
+   stairs) and its horizontal scaled by the suit's stride-scale error
+   (:class:`StrideScale`: the believed registrations' horizontal path over the
+   suit's, over the last ``scale_window_s``).
+
+Every output is the pelvis pose at the sweep's reference time (the middle of
+its points' times) on the LiDAR's clock, in ``map``. :meth:`~TrajectoryPipeline.refine`
+solves the whole capture's graph at once (the offline refinement's trajectory).
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lip_ros.core.imu_sync import ImuSampleLike
+from lip_ros.core.rotations import axis_angle_to_matrix
+from lip_ros.hsc4d.jump_sync import JumpSync, JumpSyncConfig
+from lip_ros.hsc4d.lidar_odometry import LidarOdometry, OdometryConfig, WearerFilter
+from lip_ros.hsc4d.map_frame import MapFrame, MapFrameConfig, estimate_map_frame
+from lip_ros.hsc4d.mount import HipMountPrior, MountYawEstimator, levelled_mount_rotation
+from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
+from lip_ros.hsc4d.pose_graph import LiveTrajectoryGraph, PoseGraphConfig, fuse_batch
+from lip_ros.hsc4d.suit_track import SuitTrack
+from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
+
+__all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline"]
+
+#: suit samples per second (the contract's 100 Hz), to size the suit's buffers
+SUIT_RATE_HZ = 100.0
+
+
+@dataclass(frozen=True)
+class TrajectoryConfig:
+    """Every stage's settings."""
+
+    mount: HipMountPrior = HipMountPrior()
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
+    map_frame: MapFrameConfig = field(default_factory=MapFrameConfig)
+    sweep_height: SweepHeightConfig = field(default_factory=SweepHeightConfig)
+    jump: JumpSyncConfig = field(default_factory=JumpSyncConfig)
+    hold_s: float = 15.0  # sweeps held while waiting for the jump (about 0.8 MB each at 1024 x 64)
+    map_after_s: float = 1.0  # registered capture before the map frame is fixed (the wearer stands still)
+    scale_window_s: float = 20.0  # the suit's stride scale is measured over this much believed walking
+    scale_min_path_m: float = 5.0  # ... once the suit has walked this far in it (1 before)
+    max_scale_error: float = 0.2  # the scale is kept within 1 -+ this
+    record_s: float = 3600.0  # each sweep's factors kept this long for the offline refinement (256 B a sweep)
+    seed: int = 0  # of the RANSAC fits
+
+    def __post_init__(self) -> None:
+        if not (self.hold_s > 0.0 and self.map_after_s >= 0.0 and self.record_s > 0.0 and self.scale_window_s > 0.0
+                and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0):
+            raise ValueError(f"invalid {self}")
+
+
+@dataclass(frozen=True)
+class TrajectoryStep:
+    """One sweep's output: its reference time (LiDAR clock), the fused pelvis pose T_map_P and the odometry's
+    sensor pose T_map_L (4, 4) each, why the registration was not believed ("" if it was), how far it moved the
+    initial guess (m) and how many points it registered."""
+
+    stamp_ns: int
+    pelvis: np.ndarray
+    lidar: np.ndarray
+    rejected: str
+    correction_m: float
+    source_points: int
+
+
+class StrideScale:
+    """The suit's stride scale against the LiDAR: the horizontal path (in the pelvis frame: its x and z) of the
+    believed registrations over the suit's, over a sliding window of ``window_s`` seconds; 1 until the suit
+    walked ``min_path_m`` in it; kept within 1 -+ ``max_error``."""
+
+    def __init__(self, window_s: float, min_path_m: float, max_error: float) -> None:
+        self.window_ns, self.min_path_m, self.max_error = int(window_s * 1e9), min_path_m, max_error
+        self._steps: deque[tuple[int, float, float]] = deque()
+        self._lidar = self._suit = 0.0
+        self.value = 1.0
+
+    def add(self, stamp_ns: int, lidar_step: np.ndarray, suit_step: np.ndarray) -> float:
+        """One believed step's T_Pprev_P by the LiDAR and by the suit; the scale now (LiDAR per suit)."""
+        lidar, suit = float(np.hypot(lidar_step[0, 3], lidar_step[2, 3])), float(np.hypot(suit_step[0, 3],
+                                                                                            suit_step[2, 3]))
+        self._steps.append((stamp_ns, lidar, suit))
+        self._lidar += lidar
+        self._suit += suit
+        while self._steps[0][0] < stamp_ns - self.window_ns:
+            _, a, b = self._steps.popleft()
+            self._lidar -= a
+            self._suit -= b
+        if self._suit >= self.min_path_m:
+            self.value = float(np.clip(self._lidar / self._suit, 1.0 - self.max_error, 1.0 + self.max_error))
+        return self.value
+
+
+@dataclass(frozen=True)
+class _Registered:
+    stamp_ns: int
+    T_O_L: np.ndarray
+    fused_T_O_P: np.ndarray
+    rejected: str
+    correction_m: float
+    source_points: int
+
+
+class TrajectoryPipeline:
+    """The live trajectory; inputs in any interleaving, each stream in its own time order."""
+
+    def __init__(self, config: TrajectoryConfig | None = None) -> None:
+        c = self.config = config or TrajectoryConfig()
+        capacity = int((c.hold_s + c.jump.max_offset_s + 5.0) * SUIT_RATE_HZ)  # the held sweeps' suit data too
+        self.rotation = PelvisRotation(c.mount.R_M_L, capacity=capacity)
+        self.suit = SuitTrack(c.mount, capacity=capacity)
+        self.jump = JumpSync(c.jump)
+        self.odometry = LidarOdometry(c.odometry, WearerFilter(c.mount))
+        self.graph = LiveTrajectoryGraph(c.graph)
+        self.stride_scale = StrideScale(c.scale_window_s, c.scale_min_path_m, c.max_scale_error)
+        self.map_frame: MapFrame | None = None
+        self.mount_levelled_deg = float("nan")  #: how far levelling turned the nominal mounting
+        self.mount_yaw = MountYawEstimator()
+        self.mount_yaw_deg = 0.0  #: how far walking turned it since, about the body's axis
+        self.counts: Counter[str] = Counter()
+        self._rng = np.random.default_rng(c.seed)
+        self._held: deque[tuple[np.ndarray, np.ndarray, int]] = deque()
+        self._pending: list[_Registered] = []  # registered before the map frame was fixed
+        self._first_ns: int | None = None
+        self._last_ns: int | None = None
+        self._T_M_L, self._T_L_M = c.mount.T_M_L, c.mount.T_L_M
+        records = int(c.record_s * 20.0)  # at up to 20 Hz
+        self._landmarks: deque[np.ndarray | None] = deque(maxlen=records)
+        self._between: deque[np.ndarray | None] = deque(maxlen=records)
+        self._stamps: deque[int] = deque(maxlen=records)
+
+    @property
+    def offset_ns(self) -> int | None:
+        """The suit's clock offset (suit stamp = LiDAR stamp + offset), once the jump gave it."""
+        return self.jump.offset_ns
+
+    @property
+    def T_L_M(self) -> np.ndarray:
+        """(4, 4) the pelvis in the LiDAR frame as the mounting now stands (nominal, then levelled)."""
+        return self._T_L_M
+
+    @property
+    def status(self) -> str:
+        """What the trajectory waits for, or where it stands."""
+        if self.offset_ns is None:
+            return f"{self.jump.status}; {len(self._held)} sweeps held"
+        if self.map_frame is None:
+            return "synced; fixing the map frame from the first sweeps"
+        return "tracking"
+
+    def add_pelvis_imu(self, sample: ImuSampleLike) -> str | None:
+        """One sample of the suit's pelvis IMU (suit clock); why it was rejected, None if kept."""
+        reason = self.rotation.add(sample)
+        if reason is None:
+            self.jump.add_suit(int(sample.stamp_ns), np.asarray(sample.accel, dtype=np.float64))
+        else:
+            self.counts[f"pelvis imu rejected: {reason}"] += 1
+        return reason
+
+    def add_suit_odometry(self, stamp_ns: int, position: np.ndarray, quat: np.ndarray) -> str | None:
+        """One sample of the suit's own odometry (suit clock); why it was rejected, None if kept."""
+        reason = self.suit.add(stamp_ns, position, quat)
+        if reason is not None:
+            self.counts[f"suit odometry rejected: {reason}"] += 1
+        return reason
+
+    def add_sweep(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> list[TrajectoryStep]:
+        """One sweep: ``points`` (N, 3) in the LiDAR frame (non-finite ones dropped), each seen at ``point_ns``
+        (N,), the sweep stamped ``stamp_ns``; the steps that became ready (none while waiting for the jump or
+        the map frame, several once they are found). A sweep not after the last is refused (ValueError)."""
+        if self._last_ns is not None and stamp_ns <= self._last_ns:
+            raise ValueError(f"sweep at {stamp_ns} ns is not after the last one ({self._last_ns} ns)")
+        self._last_ns = int(stamp_ns)
+        points = np.asarray(points, dtype=np.float64)
+        point_ns = np.asarray(point_ns, dtype=np.int64)
+        finite = np.isfinite(points).all(axis=1)
+        points, point_ns = points[finite], point_ns[finite]
+        if self.offset_ns is None:
+            self._wait_for_jump(points, point_ns, int(stamp_ns))
+            if self.offset_ns is None:
+                return []
+            self.rotation.set_offset(self.offset_ns)
+            self.suit.set_offset(self.offset_ns)
+            out: list[TrajectoryStep] = []
+            while self._held:
+                out += self._register(*self._held.popleft())
+            return out
+        return self._register(points, point_ns, int(stamp_ns))
+
+    def _wait_for_jump(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> None:
+        """Hold the sweep; give the jump sync the sensor's height above the ground in it."""
+        keep = self.odometry.wearer.keep(points)
+        height = sweep_height(points[keep], point_ns[keep], self._rng, self.config.mount, self.config.sweep_height)
+        if height is None:
+            self.counts["no ground in a sweep before the jump"] += 1
+        else:
+            self.jump.add_lidar(*height)
+        self._held.append((points, point_ns, stamp_ns))
+        while self._held[-1][2] - self._held[0][2] > self.config.hold_s * 1e9:
+            self._held.popleft()
+            self.counts["sweeps dropped waiting for the jump"] += 1
+
+    def _register(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> list[TrajectoryStep]:
+        """Register and fuse one sweep; the steps that became ready."""
+        ref = (int(point_ns.min()) + int(point_ns.max())) // 2 if point_ns.size else stamp_ns
+        previous_pose, previous_ns = self.odometry.pose, (self._stamps[-1] if self._stamps else None)
+        step = self.odometry.register(points, point_ns, ref, self.rotation, self.suit, self.rotation.vertical_shift)
+        if step.rejected:
+            self.counts["registrations not believed"] += 1
+        T_O_P = step.pose @ self._T_L_M
+        between = None
+        if previous_ns is not None:
+            suit = self.suit.pelvis(previous_ns), self.suit.pelvis(ref)
+            if suit[0] is not None and suit[1] is not None:
+                between = np.linalg.inv(suit[0]) @ suit[1]
+                lidar = self._T_M_L @ np.linalg.inv(previous_pose) @ step.pose @ self._T_L_M
+                scale = self.stride_scale.value if step.rejected else self.stride_scale.add(ref, lidar, between)
+                if not step.rejected and self.odometry.gravity is not None:
+                    self._turn_mount(np.linalg.inv(previous_pose) @ step.pose,
+                                     self.suit.lidar_motion(previous_ns, ref))
+                between[[0, 2], 3] *= scale
+                between[1, 3] = lidar[1, 3]  # the vertical (P's y) the suit does not know: the odometry's
+        landmark = None if step.rejected else T_O_P
+        self._stamps.append(ref)
+        self._landmarks.append(landmark)
+        self._between.append(between)
+        fused = self.graph.add(ref, landmark, between)
+        self._pending.append(_Registered(ref, step.pose, fused, step.rejected, step.correction_m,
+                                         step.source_points))
+        if self._first_ns is None:
+            self._first_ns = ref
+        if self.map_frame is None:
+            if ref - self._first_ns < self.config.map_after_s * 1e9:
+                return []
+            up = self.suit.up_in_lidar(self._first_ns)
+            if up is None:
+                up = self.config.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])
+                self.counts["map frame without the suit's gravity"] += 1
+            first = self._pending[0]
+            self.map_frame = estimate_map_frame(self.odometry.map_points(), first.T_O_L @ self._T_L_M, up,
+                                                self._rng, self.config.map_frame)
+            self._level(first)
+        T = self.map_frame.T_map_O
+        out = [TrajectoryStep(r.stamp_ns, T @ r.fused_T_O_P, T @ r.T_O_L, r.rejected, r.correction_m,
+                              r.source_points) for r in self._pending]
+        self._pending.clear()
+        return out
+
+    def _level(self, first: _Registered) -> None:
+        """Level the mounting with the map's up at the first sweep and give the odometry gravity."""
+        up_O = np.linalg.inv(self.map_frame.T_map_O)[:3, 2]
+        pelvis = self.suit.pelvis(first.stamp_ns)
+        if pelvis is None:
+            self.counts["mounting not levelled: no suit pose at the first sweep"] += 1
+            return
+        nominal = self._T_M_L[:3, :3]
+        R_M_L = levelled_mount_rotation(nominal, pelvis[:3, :3].T @ [0.0, 0.0, 1.0], first.T_O_L[:3, :3].T @ up_O)
+        self.mount_levelled_deg = float(np.degrees(np.arccos(np.clip((np.trace(nominal.T @ R_M_L) - 1.0) / 2.0,
+                                                                     -1.0, 1.0))))
+        self._set_mount_rotation(R_M_L)
+        self.odometry.set_gravity(up_O)
+
+    def _turn_mount(self, registered: np.ndarray, predicted: np.ndarray | None) -> None:
+        """Feed one believed sweep's registered and suit-predicted motion (T_Lprev_L) to the mounting's yaw."""
+        if predicted is None:
+            return
+        axis = self._T_M_L[:3, :3].T @ np.array([0.0, 1.0, 0.0])  # the body's axis in L
+        angle = self.mount_yaw.add(registered[:3, 3], predicted[:3, 3], axis)
+        if angle is not None:
+            self.mount_yaw_deg += float(np.degrees(angle))
+            self._set_mount_rotation(self._T_M_L[:3, :3] @ axis_angle_to_matrix(-angle * axis))
+
+    def _set_mount_rotation(self, R_M_L: np.ndarray) -> None:
+        """Use this mounting rotation everywhere from now on."""
+        self._T_M_L = self._T_M_L.copy()
+        self._T_M_L[:3, :3] = R_M_L
+        self._T_L_M = np.linalg.inv(self._T_M_L)
+        self.suit.set_mount_rotation(R_M_L)
+        self.rotation.R_M_L = R_M_L
+
+    def refine(self) -> tuple[np.ndarray, np.ndarray]:
+        """The recorded sweeps' stamps (N,) and pelvis poses T_map_P (N, 4, 4) from the whole graph solved at
+        once; empty before the map frame is fixed."""
+        if self.map_frame is None or not self._stamps:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 4, 4))
+        poses = fuse_batch(list(self._landmarks), list(self._between), self.config.graph)
+        return np.array(self._stamps, dtype=np.int64), self.map_frame.T_map_O @ poses
