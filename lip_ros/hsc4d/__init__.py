@@ -1,14 +1,17 @@
 """The HSC4D branch, ROS-free: a hip-worn Ouster and a 17-IMU suit ("Human-centered 4D Scene Capture").
 
-Being built (its own issue). Here so far: :mod:`~lip_ros.hsc4d.jump_sync`,
-the suit's clock against the LiDAR's from the jump;
-:mod:`~lip_ros.hsc4d.mount`, the nominal hip mounting;
-:mod:`~lip_ros.hsc4d.pelvis_rotation`, the LiDAR's rotation over a sweep from
-the suit's pelvis IMU; :mod:`~lip_ros.hsc4d.lidar_odometry`, LiDAR odometry
-and mapping on kiss-icp (the one module that imports it). To come:
-LiDAR-to-pelvis extrinsics, the pose graph fusing the LiDAR trajectory with
-the suit's motion (gtsam, wrapped in one module) and the scene-aware
-optimisation (foot contact, sliding, smoothness). Like :mod:`lip_ros.lip` it
-uses :mod:`lip_ros.core` and never imports the other branch; its nodes go in
+Being built (its own issue). The live trajectory, :mod:`~lip_ros.hsc4d.trajectory`,
+puts together: :mod:`~lip_ros.hsc4d.jump_sync` (the suit's clock from the
+jump) with :mod:`~lip_ros.hsc4d.sweep_height` (the LiDAR's height from each
+sweep's ground); :mod:`~lip_ros.hsc4d.pelvis_rotation` (the LiDAR's rotation
+and vertical motion from the suit's pelvis IMU) and
+:mod:`~lip_ros.hsc4d.suit_track` (its motion from the suit's own odometry);
+:mod:`~lip_ros.hsc4d.lidar_odometry` (kiss-icp, the one module that imports
+it); :mod:`~lip_ros.hsc4d.map_frame`; :mod:`~lip_ros.hsc4d.mount` (the nominal
+mounting and its estimate); :mod:`~lip_ros.hsc4d.pose_graph` (gtsam, the one
+module that imports it). :mod:`~lip_ros.hsc4d.evaluation` measures it on rig
+captures against the paper's baselines. To come: the scene-aware optimisation
+(foot contact, sliding, smoothness) and the offline map. Like :mod:`lip_ros.lip`
+it uses :mod:`lip_ros.core` and never imports the other branch; its nodes go in
 :mod:`lip_ros.nodes.hsc4d`.
 """

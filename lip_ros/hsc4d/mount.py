@@ -80,14 +80,18 @@ class MountYawEstimator:
     """The mounting's turn about the body's axis from walking. Each believed sweep gives the LiDAR's registered
     translation and the suit's prediction of it through the current mounting (both in L); their parts across the
     body's axis are summed until the prediction has covered ``min_path_m``; the angle from the summed prediction
-    to the summed registration is then the correction, returned if at least ``min_correction_deg`` (the sums
-    restart either way, so each window measures the mounting as it stands)."""
+    to the summed registration is then what is left of the mounting's error, give or take the window's noise.
+    The correction returned is that angle over the number of windows so far (at most ``average_windows``): the
+    mounting does not change, so the estimate is the running mean of what the windows measured (the sums restart
+    after each window, so each measures the mounting as it then stands)."""
 
-    def __init__(self, min_path_m: float = 5.0, min_correction_deg: float = 0.1, max_correction_deg: float = 15.0
-                 ) -> None:
-        if not (min_path_m > 0.0 and 0.0 <= min_correction_deg < max_correction_deg):
-            raise ValueError(f"invalid path {min_path_m} or corrections {min_correction_deg}..{max_correction_deg}")
+    def __init__(self, min_path_m: float = 5.0, average_windows: int = 20, min_correction_deg: float = 0.02,
+                 max_correction_deg: float = 15.0) -> None:
+        if not (min_path_m > 0.0 and average_windows >= 1 and 0.0 <= min_correction_deg < max_correction_deg):
+            raise ValueError(f"invalid path {min_path_m}, windows {average_windows} or corrections "
+                             f"{min_correction_deg}..{max_correction_deg}")
         self.min_path_m = min_path_m
+        self.average_windows = average_windows
         self.min_correction = np.radians(min_correction_deg)
         self.max_correction = np.radians(max_correction_deg)
         self._cross = self._dot = self._path = 0.0
@@ -105,9 +109,9 @@ class MountYawEstimator:
         self._path += float(np.linalg.norm(p))
         if self._path < self.min_path_m:
             return None
-        angle = float(np.arctan2(self._cross, self._dot))
-        self._cross = self._dot = self._path = 0.0
         self.windows += 1
+        angle = float(np.arctan2(self._cross, self._dot)) / min(self.windows, self.average_windows)
+        self._cross = self._dot = self._path = 0.0
         if abs(angle) < self.min_correction:
             return None
         return float(np.clip(angle, -self.max_correction, self.max_correction))

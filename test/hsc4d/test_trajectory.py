@@ -4,6 +4,8 @@ baselines (lip_ros.hsc4d.trajectory, lip_ros.hsc4d.evaluation)."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -14,6 +16,7 @@ from lip_ros.hsc4d.lidar_odometry import LidarOdometry, WearerFilter
 from lip_ros.hsc4d.map_frame import estimate_map_frame
 from lip_ros.hsc4d.suit_track import SuitTrack
 from lip_ros.hsc4d.sweep_height import sweep_height
+from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 
@@ -95,3 +98,29 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
     assert metrics["live"]["ate_m"] < 0.1 and metrics["refined"]["ate_m"] < 0.1
     assert metrics["baseline1_suit"]["ate_m"] > 2.0 * metrics["live"]["ate_m"]
     assert np.isfinite([v for m in metrics.values() for v in m.values() if not np.isnan(v)]).all()
+
+
+def test_without_a_jump_the_pipeline_holds_a_bounded_number_of_sweeps_and_says_why():
+    """Sweeps of a flat ground with no jump: nothing is output, at most ``hold_s`` of sweeps are held and the
+    rest are dropped and counted, the status says what it waits for; bad suit samples are refused and counted,
+    a non-finite point is dropped, a sweep not after the last is refused."""
+    rng = np.random.default_rng(0)
+    config = TrajectoryConfig(hold_s=1.0)
+    pipeline = TrajectoryPipeline(config)
+    ground = np.column_stack([rng.uniform(-8.0, 8.0, (4000, 2)), np.zeros(4000)])
+    # the sensor 0.95 m up, looking where the nominal mounting says: ground points in L
+    R_W_L = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]) @ config.mount.R_M_L
+    points = (ground - [0.0, 0.0, 0.95]) @ R_W_L
+    points[0] = np.nan
+    for k in range(30):
+        stamp = 10**18 + k * 100_000_000
+        assert pipeline.add_sweep(points, np.full(len(points), stamp), stamp) == []
+    assert len(pipeline._held) <= 11 and pipeline.counts["sweeps dropped waiting for the jump"] >= 19
+    assert "waiting for the jump" in pipeline.status and pipeline.offset_ns is None
+    assert pipeline.add_suit_odometry(10**18, [0.0, 0.0, np.nan], [0.0, 0.0, 0.0, 1.0]) == "not finite"
+    assert pipeline.counts["suit odometry rejected: not finite"] == 1
+    nan_imu = SimpleNamespace(stamp_ns=10**18, quat=np.array([0.0, 0.0, 0.0, 1.0]), gyro=np.zeros(3),
+                              accel=np.array([0.0, np.nan, 9.81]))
+    assert pipeline.add_pelvis_imu(nan_imu) is not None and not pipeline.jump._suit
+    with pytest.raises(ValueError):
+        pipeline.add_sweep(points, np.full(len(points), 10**18), 10**18)
