@@ -38,7 +38,7 @@ overflow.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol
@@ -403,26 +403,24 @@ class ImuSynchronizer:
     def orientations(self, name: str, stamp_ns: np.ndarray) -> np.ndarray:
         """R_I_S (T, 4) of ``name`` interpolated at the measurement times of samples stamped ``stamp_ns`` (T,), NaN
         where the buffer does not bracket them (nothing is held)."""
-        stamps, rows = self._buffers[name].stamps, self._buffers[name].rows
-        t = np.asarray(stamp_ns, dtype=np.int64) - self._latency_ns[name]
-        quat = np.full((t.size, 4), np.nan)
-        if stamps.size:
-            before, after, ok = _bracket(stamps, t, self.config)
-            lo, hi = np.maximum(before, 0), np.minimum(after, stamps.size - 1)
-            quat[ok] = _slerp(rows[lo[ok], _QUAT], rows[hi[ok], _QUAT], _weights(stamps, t, lo, hi, ok))
-        return quat
+        return self._bracketed(name, stamp_ns, 4, lambda a, b, w: _slerp(a[:, _QUAT], b[:, _QUAT], w))
 
     def specific_forces(self, name: str, stamp_ns: np.ndarray) -> np.ndarray:
         """Specific force (T, 3) in the sensor frame of ``name`` interpolated linearly at the measurement times of
         samples stamped ``stamp_ns`` (T,), NaN where the buffer does not bracket them (nothing is held)."""
+        return self._bracketed(name, stamp_ns, 3,
+                               lambda a, b, w: (1.0 - w)[:, None] * a[:, _ACCEL] + w[:, None] * b[:, _ACCEL])
+
+    def _bracketed(self, name: str, stamp_ns: np.ndarray, width: int,
+                   blend: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
+        """(T, width): ``blend(rows before, rows after, weights)`` at the measurement times of ``stamp_ns``."""
         stamps, rows = self._buffers[name].stamps, self._buffers[name].rows
         t = np.asarray(stamp_ns, dtype=np.int64) - self._latency_ns[name]
-        out = np.full((t.size, 3), np.nan)
+        out = np.full((t.size, width), np.nan)
         if stamps.size:
             before, after, ok = _bracket(stamps, t, self.config)
             lo, hi = np.maximum(before, 0), np.minimum(after, stamps.size - 1)
-            w = _weights(stamps, t, lo, hi, ok)[:, None]
-            out[ok] = (1.0 - w) * rows[lo[ok], _ACCEL] + w * rows[hi[ok], _ACCEL]
+            out[ok] = blend(rows[lo[ok]], rows[hi[ok]], _weights(stamps, t, lo, hi, ok))
         return out
 
     def insert(self, name: str, stamp_ns: int, row: np.ndarray, code: int) -> str | None:
