@@ -41,7 +41,8 @@ class TrajectoryRun:
     pelvis positions (N, 3) per method and of the truth, the true ground height under the true pelvis (N,), the
     jump's landing (s), the suit clock offset found and the true one (ns), which registrations were not
     believed (N,), the time each sweep took in ``add_sweep`` (ms; the sweeps held until the jump are
-    registered in the call that finds it) and the pipeline's counters."""
+    registered together in the call that finds it, each counted at that call's time over their number) and the
+    pipeline's counters."""
 
     seed: int
     t_s: np.ndarray
@@ -81,7 +82,7 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                                  frame.stamp_ns)
         ms = 1e3 * (time.perf_counter() - t0)
         steps += out
-        sweep_ms += [ms] * len(out)
+        sweep_ms += [ms / max(len(out), 1)] * len(out)  # the held sweeps share the call that registers them
         if progress is not None:
             progress(k, n)
     if pipeline.offset_ns is None or not steps:
