@@ -151,8 +151,8 @@ class TrajectoryPipeline:
         self.counts: Counter[str] = Counter()
         self._rng = np.random.default_rng(c.seed)
         self._held: deque[tuple[np.ndarray, np.ndarray, int]] = deque()
-        self._pending: list[_Registered] = []  # registered before the map frame was fixed
-        self._first_ns: int | None = None
+        self._pending: deque[_Registered] = deque()  # registered before the map frame was fixed
+        self._first: _Registered | None = None
         self._last_ns: int | None = None
         self._T_M_L, self._T_L_M = c.mount.T_M_L, c.mount.T_L_M
         records = int(c.record_s * 20.0)  # at up to 20 Hz
@@ -167,7 +167,7 @@ class TrajectoryPipeline:
 
     @property
     def T_L_M(self) -> np.ndarray:
-        """(4, 4) the pelvis in the LiDAR frame as the mounting now stands (nominal, then levelled)."""
+        """(4, 4) the pelvis in the LiDAR frame as the mounting now stands (nominal, then levelled and turned)."""
         return self._T_L_M
 
     @property
@@ -258,24 +258,37 @@ class TrajectoryPipeline:
         fused = self.graph.add(ref, landmark, between)
         self._pending.append(_Registered(ref, step.pose, fused, step.rejected, step.correction_m,
                                          step.source_points))
-        if self._first_ns is None:
-            self._first_ns = ref
-        if self.map_frame is None:
-            if ref - self._first_ns < self.config.map_after_s * 1e9:
-                return []
-            up = self.suit.up_in_lidar(self._first_ns)
-            if up is None:
-                up = self.config.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])
-                self.counts["map frame without the suit's gravity"] += 1
-            first = self._pending[0]
-            self.map_frame = estimate_map_frame(self.odometry.map_points(), first.T_O_L @ self._T_L_M, up,
-                                                self._rng, self.config.map_frame)
-            self._level(first)
+        if self._first is None:
+            self._first = self._pending[0]
+        if self.map_frame is None and not self._fix_map_frame(ref):
+            while self._pending[-1].stamp_ns - self._pending[0].stamp_ns > self.config.hold_s * 1e9:
+                self._pending.popleft()
+                self.counts["sweeps dropped waiting for the map frame"] += 1
+            return []
         T = self.map_frame.T_map_O
         out = [TrajectoryStep(r.stamp_ns, T @ r.fused_T_O_P, T @ r.T_O_L, r.rejected, r.correction_m,
                               r.source_points) for r in self._pending]
         self._pending.clear()
         return out
+
+    def _fix_map_frame(self, ref: int) -> bool:
+        """Once ``map_after_s`` of capture is registered, fix the map frame and level the mounting; whether the
+        map frame is fixed."""
+        first = self._first
+        if ref - first.stamp_ns < self.config.map_after_s * 1e9:
+            return False
+        up = self.suit.up_in_lidar(first.stamp_ns)
+        if up is None:
+            up = self.config.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])
+            self.counts["map frame without the suit's gravity"] += 1
+        try:
+            self.map_frame = estimate_map_frame(self.odometry.map_points(), first.T_O_L @ self._T_L_M, up,
+                                                self._rng, self.config.map_frame)
+        except ValueError as error:  # tried again with the next sweep
+            self.counts[f"map frame not found: {error}"] += 1
+            return False
+        self._level(first)
+        return True
 
     def _level(self, first: _Registered) -> None:
         """Level the mounting with the map's up at the first sweep and give the odometry gravity."""
