@@ -29,7 +29,7 @@ from lip_ros.core.metrics import align_yaw_translation
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline
 from lip_ros.rig.site_capture import SiteCapture
 
-__all__ = ["METHODS", "TrajectoryRun", "run_capture", "trajectory_metrics"]
+__all__ = ["METHODS", "TrajectoryRun", "run_capture", "aligned", "trajectory_metrics"]
 
 #: the trajectories compared, in report order
 METHODS = ("baseline1_suit", "baseline2_lidar", "live", "refined")
@@ -110,21 +110,33 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                          np.array(sweep_ms), dict(pipeline.counts))
 
 
+def _fit_window(run: TrajectoryRun, fit_s: float) -> np.ndarray:
+    """(N,) bool: the sweeps in the ``fit_s`` seconds after the landing."""
+    fit = (run.t_s >= run.landing_s) & (run.t_s <= run.landing_s + fit_s)
+    if fit.sum() < 2:
+        raise ValueError(f"fewer than two sweeps in the {fit_s} s after the landing at {run.landing_s:.1f} s")
+    return fit
+
+
+def aligned(run: TrajectoryRun, name: str, fit_s: float = 5.0) -> np.ndarray:
+    """(N, 3) method ``name``'s pelvis positions turned about z and shifted onto the truth by the fit over the
+    ``fit_s`` s after the landing, kept for the whole capture."""
+    T = align_yaw_translation(run.positions[name], run.truth, _fit_window(run, fit_s))
+    return run.positions[name] @ T[:3, :3].T + T[:3, 3]
+
+
 def trajectory_metrics(run: TrajectoryRun, fit_s: float = 5.0, level_m: float = 0.05) -> dict[str, dict[str, float]]:
     """Per method (:data:`METHODS`): ``ate_m`` (pelvis RMSE after the yaw + translation alignment fitted on the
     ``fit_s`` s after the landing), ``vertical_m`` (RMS height error where the true ground is more than
     ``level_m`` off the start's level: stairs, ramps, the terrace), ``final_m`` (error at the end), and the
     alignment's own residual ``fit_m`` (RMSE over the fitted seconds)."""
-    fit = (run.t_s >= run.landing_s) & (run.t_s <= run.landing_s + fit_s)
-    if fit.sum() < 2:
-        raise ValueError(f"fewer than two sweeps in the {fit_s} s after the landing at {run.landing_s:.1f} s")
+    fit = _fit_window(run, fit_s)
     off_level = np.abs(run.ground - run.ground[0]) > level_m
     out = {}
     for name in METHODS:
-        T = align_yaw_translation(run.positions[name], run.truth, fit)
-        aligned = run.positions[name] @ T[:3, :3].T + T[:3, 3]
-        err = np.linalg.norm(aligned - run.truth, axis=1)
-        dz = aligned[:, 2] - run.truth[:, 2]
+        p = aligned(run, name, fit_s)
+        err = np.linalg.norm(p - run.truth, axis=1)
+        dz = p[:, 2] - run.truth[:, 2]
         out[name] = {
             "ate_m": float(np.sqrt(np.mean(err**2))),
             "vertical_m": float(np.sqrt(np.mean(dz[off_level] ** 2))) if off_level.any() else float("nan"),

@@ -136,8 +136,8 @@ class OdometryStep:
     """One registered sweep: its reference time, the pose T_O_L (4, 4), the deskewed points used (in L at the
     reference time), how many took part in the registration, the kiss-icp threshold (m), how far the
     registration moved the initial guess (m, rad), why the registration was not believed ("" if it was; the
-    guess kept), whether the guess's translation came from the suit, and how far the pose's up was from the
-    suit's gravity before it was turned toward it (deg; NaN without gravity)."""
+    guess kept) and how far the pose's up was from the suit's gravity before it was turned toward it (deg; NaN
+    without gravity)."""
 
     stamp_ns: int
     pose: np.ndarray
@@ -147,7 +147,6 @@ class OdometryStep:
     correction_m: float
     correction_rad: float
     rejected: str = ""
-    suit_guided: bool = False
     tilt_deg: float = float("nan")
 
 
@@ -271,8 +270,7 @@ class LidarOdometry:
             self._delta, self._delta_s = np.linalg.inv(self.pose) @ pose, dt
         self.pose, self._stamp_ns = pose, stamp_ns
         return OdometryStep(stamp_ns, pose, frame, len(source), sigma, correction_m,
-                            float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected,
-                            suit_motion is not None, tilt)
+                            float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected, tilt)
 
     def _speed_rule(self, step: np.ndarray, suit_horizontal: np.ndarray, up: np.ndarray, dt: float) -> str:
         """Why the registered motion ``step`` (T_Lprev_L) is not believed against the suit's horizontal motion over

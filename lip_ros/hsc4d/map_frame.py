@@ -50,10 +50,6 @@ class MapFrame:
     ground_vs_suit_deg: float
     pelvis_height_m: float
 
-    def apply(self, T_O: np.ndarray) -> np.ndarray:
-        """Poses or transforms (..., 4, 4) in O, in ``map``."""
-        return self.T_map_O @ T_O
-
 
 def estimate_map_frame(points: np.ndarray, T_O_P0: np.ndarray, suit_up: np.ndarray, rng: np.random.Generator,
                        config: MapFrameConfig | None = None) -> MapFrame:

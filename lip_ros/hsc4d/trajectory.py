@@ -244,11 +244,11 @@ class TrajectoryPipeline:
             suit = self.suit.pelvis(previous_ns), self.suit.pelvis(ref)
             if suit[0] is not None and suit[1] is not None:
                 between = np.linalg.inv(suit[0]) @ suit[1]
-                lidar = self._T_M_L @ np.linalg.inv(previous_pose) @ step.pose @ self._T_L_M
+                registered = np.linalg.inv(previous_pose) @ step.pose  # T_Lprev_L
+                lidar = self._T_M_L @ registered @ self._T_L_M
                 scale = self.stride_scale.value if step.rejected else self.stride_scale.add(ref, lidar, between)
-                if not step.rejected and self.odometry.gravity is not None:
-                    self._turn_mount(np.linalg.inv(previous_pose) @ step.pose,
-                                     self.suit.lidar_motion(previous_ns, ref))
+                if not step.rejected and self.odometry.gravity is not None:  # the suit's T_Lprev_L, as SuitTrack's
+                    self._turn_mount(registered, self._T_L_M @ between @ self._T_M_L)
                 between[[0, 2], 3] *= scale
                 between[1, 3] = lidar[1, 3]  # the vertical (P's y) the suit does not know: the odometry's
         landmark = None if step.rejected else T_O_P
@@ -304,10 +304,8 @@ class TrajectoryPipeline:
         self._set_mount_rotation(R_M_L)
         self.odometry.set_gravity(up_O)
 
-    def _turn_mount(self, registered: np.ndarray, predicted: np.ndarray | None) -> None:
+    def _turn_mount(self, registered: np.ndarray, predicted: np.ndarray) -> None:
         """Feed one believed sweep's registered and suit-predicted motion (T_Lprev_L) to the mounting's yaw."""
-        if predicted is None:
-            return
         axis = self._T_M_L[:3, :3].T @ np.array([0.0, 1.0, 0.0])  # the body's axis in L
         angle = self.mount_yaw.add(registered[:3, 3], predicted[:3, 3], axis)
         if angle is not None:

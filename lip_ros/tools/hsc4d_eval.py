@@ -23,19 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from lip_ros.core.metrics import align_yaw_translation
-from lip_ros.hsc4d.evaluation import METHODS, TrajectoryRun, run_capture, trajectory_metrics
+from lip_ros.hsc4d.evaluation import METHODS, TrajectoryRun, aligned, run_capture, trajectory_metrics
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 _LABELS = {"baseline1_suit": "Baseline1 (suit)", "baseline2_lidar": "Baseline2 (LiDAR)", "live": "live",
            "refined": "refined"}
 _STYLES = {"baseline1_suit": "c:", "baseline2_lidar": "g-.", "live": "r-", "refined": "b--"}
-
-
-def _aligned(run: TrajectoryRun, name: str, fit_s: float = 5.0) -> np.ndarray:
-    fit = (run.t_s >= run.landing_s) & (run.t_s <= run.landing_s + fit_s)
-    T = align_yaw_translation(run.positions[name], run.truth, fit)
-    return run.positions[name] @ T[:3, :3].T + T[:3, 3]
 
 
 def plot(runs: list[TrajectoryRun], out: Path) -> None:
@@ -51,7 +44,7 @@ def plot(runs: list[TrajectoryRun], out: Path) -> None:
         top.plot(run.truth[:, 0], run.truth[:, 1], "k-", lw=2.0, alpha=0.4, label="truth")
         side.plot(run.t_s, run.truth[:, 2], "k-", lw=2.0, alpha=0.4, label="truth")
         for name in METHODS:
-            p = _aligned(run, name)
+            p = aligned(run, name)
             top.plot(p[:, 0], p[:, 1], _STYLES[name], lw=1.0, label=_LABELS[name])
             side.plot(run.t_s, p[:, 2], _STYLES[name], lw=1.0, label=_LABELS[name])
         top.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title=f"seed {run.seed}: pelvis from above")
