@@ -63,6 +63,8 @@ setup(
             "segmentation_node = lip_ros.nodes.lip.segmentation:main",
             "calibration_node = lip_ros.nodes.lip.calibration:main",
             "pose_node = lip_ros.nodes.lip.pose:main",
+            "hsc4d_trajectory_node = lip_ros.nodes.hsc4d.trajectory:main",
+            "hsc4d_body_node = lip_ros.nodes.hsc4d.body:main",
             "lip_rig = lip_ros.tools.rig:main",
             "lip_train = lip_ros.tools.lip_train:main",
             "lip_eval = lip_ros.tools.lip_eval:main",

@@ -1,7 +1,8 @@
 """sensor_msgs PointCloud2 and Imu straight from little-endian CDR bytes, without message objects.
 
-For batch processing of bags (:func:`lip_ros.lip.batch.process_bag_batch`), where
-building rosbags message objects costs more than the work on them:
+For batch processing of bags (:func:`lip_ros.lip.batch.process_bag_batch`), and
+for live nodes with many fast inputs (raw subscriptions), where building
+message objects costs more than the work on them:
 
 * :func:`cloud_msg` parses a PointCloud2's header and layout into a
   duck-typed message whose point data is a zero-copy view of the bytes, for
@@ -9,7 +10,7 @@ building rosbags message objects costs more than the work on them:
   checks and errors apply unchanged.
 * :func:`imu_samples` decodes many Imu messages at once and validates them
   together, giving what :func:`lip_msgs_py.msg_to_imu` gives for each, bit for
-  bit.
+  bit; :func:`cdr_stamp` reads a message's header stamp alone.
 
 Both return None for what they leave to the rosbags deserialiser and
 ``lip_msgs_py`` (big-endian CDR, unexpected sizes, and for Imu any message that
@@ -29,9 +30,10 @@ import numpy as np
 
 from lip_msgs_py import ImuSample
 from lip_msgs_py._validate import QUAT_UNIT_TOLERANCE
+from lip_msgs_py.errors import MalformedMessageError
 from lip_msgs_py.stamps import NS_PER_S
 
-__all__ = ["CloudMsg", "cloud_msg", "imu_samples"]
+__all__ = ["CloudMsg", "cloud_msg", "imu_samples", "cdr_stamp"]
 
 _LITTLE_ENDIAN = b"\x00\x01"  # CDR_LE encapsulation
 _U32 = struct.Struct("<I")
@@ -156,6 +158,17 @@ def imu_samples(datas: Sequence[bytes | memoryview]) -> list[ImuSample | None]:
         if ok else None
         for k, (head, ok) in enumerate(zip(heads, plain.tolist(), strict=True))
     ]
+
+
+def cdr_stamp(data: bytes | memoryview) -> int:
+    """The header stamp (ns) of a little-endian CDR message that starts with a std_msgs/Header (a live node's
+    quick look, e.g. at raw Imu bytes); MalformedMessageError if it cannot be read so."""
+    if bytes(data[:2]) != _LITTLE_ENDIAN or len(data) < 12:
+        raise MalformedMessageError("CDR: not a little-endian message with a header")
+    sec, nanosec = _STAMP.unpack_from(data, 4)
+    if not 0 <= nanosec < NS_PER_S:
+        raise MalformedMessageError(f"CDR: header stamp nanosec {nanosec} out of range")
+    return sec * NS_PER_S + nanosec
 
 
 def _imu_head(data: memoryview) -> tuple[int, str, int] | None:

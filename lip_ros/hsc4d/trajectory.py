@@ -85,7 +85,8 @@ class TrajectoryConfig:
 class TrajectoryStep:
     """One sweep's output: its reference time (LiDAR clock), the fused pelvis pose T_map_P and the odometry's
     sensor pose T_map_L (4, 4) each, why the registration was not believed ("" if it was), how far it moved the
-    initial guess (m) and how many points it registered."""
+    initial guess (m), how many points it registered, and the stamp the sweep was given to
+    :meth:`TrajectoryPipeline.add_sweep` with."""
 
     stamp_ns: int
     pelvis: np.ndarray
@@ -93,6 +94,7 @@ class TrajectoryStep:
     rejected: str
     correction_m: float
     source_points: int
+    sweep_ns: int
 
 
 class StrideScale:
@@ -130,6 +132,7 @@ class _Registered:
     rejected: str
     correction_m: float
     source_points: int
+    sweep_ns: int
 
 
 class TrajectoryPipeline:
@@ -176,8 +179,21 @@ class TrajectoryPipeline:
         if self.offset_ns is None:
             return f"{self.jump.status}; {len(self._held)} sweeps held"
         if self.map_frame is None:
-            return "synced; fixing the map frame from the first sweeps"
-        return "tracking"
+            return f"synced; fixing the map frame from the first sweeps; {len(self._held)} sweeps to register"
+        return f"tracking; catching up with {len(self._held)} sweeps" if self._held else "tracking"
+
+    @property
+    def waiting(self) -> int:
+        """Sweeps taken but not output yet: held for the jump, or registered before the map frame was fixed."""
+        return len(self._held) + len(self._pending)
+
+    def map_points(self) -> np.ndarray | None:
+        """(M, 3) the odometry's local map (kiss-icp's voxel map within its range of the wearer) in ``map``; None
+        before the map frame is fixed."""
+        if self.map_frame is None:
+            return None
+        T = self.map_frame.T_map_O
+        return self.odometry.map_points() @ T[:3, :3].T + T[:3, 3]
 
     def add_pelvis_imu(self, sample: ImuSampleLike) -> str | None:
         """One sample of the suit's pelvis IMU (suit clock); why it was rejected, None if kept."""
@@ -195,10 +211,14 @@ class TrajectoryPipeline:
             self.counts[f"suit odometry rejected: {reason}"] += 1
         return reason
 
-    def add_sweep(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> list[TrajectoryStep]:
+    def add_sweep(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int, max_register: int | None = None
+                  ) -> list[TrajectoryStep]:
         """One sweep: ``points`` (N, 3) in the LiDAR frame (non-finite ones dropped), each seen at ``point_ns``
         (N,), the sweep stamped ``stamp_ns``; the steps that became ready (none while waiting for the jump or
-        the map frame, several once they are found). A sweep not after the last is refused (ValueError)."""
+        the map frame, several once they are found). At most ``max_register`` sweeps are registered in one call
+        (None: every one waiting): a live caller works off the sweeps held until the jump a few at a time, with
+        :meth:`catch_up` in between, rather than all in one long call. A sweep not after the last is refused
+        (ValueError)."""
         if self._last_ns is not None and stamp_ns <= self._last_ns:
             raise ValueError(f"sweep at {stamp_ns} ns is not after the last one ({self._last_ns} ns)")
         self._last_ns = int(stamp_ns)
@@ -212,11 +232,22 @@ class TrajectoryPipeline:
                 return []
             self.rotation.set_offset(self.offset_ns)
             self.suit.set_offset(self.offset_ns)
-            out: list[TrajectoryStep] = []
-            while self._held:
-                out += self._register(*self._held.popleft())
-            return out
-        return self._register(points, point_ns, int(stamp_ns))
+        else:
+            self._held.append((points, point_ns, int(stamp_ns)))
+            while self._held[-1][2] - self._held[0][2] > self.config.hold_s * 1e9:
+                self._held.popleft()
+                self.counts["sweeps dropped: registration fell behind"] += 1
+        return self.catch_up(max_register)
+
+    def catch_up(self, max_sweeps: int | None = None) -> list[TrajectoryStep]:
+        """Register up to ``max_sweeps`` (None: all) of the sweeps waiting to be registered (those held until the
+        jump, and any taken since while they were); the steps that became ready."""
+        if self.offset_ns is None:
+            return []
+        out: list[TrajectoryStep] = []
+        for _ in range(len(self._held) if max_sweeps is None else min(max_sweeps, len(self._held))):
+            out += self._register(*self._held.popleft())
+        return out
 
     def _wait_for_jump(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> None:
         """Hold the sweep; give the jump sync the sensor's height above the ground in it."""
@@ -257,7 +288,7 @@ class TrajectoryPipeline:
         self._between.append(between)
         fused = self.graph.add(ref, landmark, between)
         self._pending.append(_Registered(ref, step.pose, fused, step.rejected, step.correction_m,
-                                         step.source_points))
+                                         step.source_points, stamp_ns))
         if self._first is None:
             self._first = self._pending[0]
         if self.map_frame is None and not self._fix_map_frame(ref):
@@ -267,7 +298,7 @@ class TrajectoryPipeline:
             return []
         T = self.map_frame.T_map_O
         out = [TrajectoryStep(r.stamp_ns, T @ r.fused_T_O_P, T @ r.T_O_L, r.rejected, r.correction_m,
-                              r.source_points) for r in self._pending]
+                              r.source_points, r.sweep_ns) for r in self._pending]
         self._pending.clear()
         return out
 

@@ -45,13 +45,15 @@ from lip_msgs_py import (
     RclpyBackend,
     diagnostic_array_to_msg,
     diagnostic_status_to_msg,
+    rclpy_message_class,
 )
 from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import use_lip_dds_profile
 from lip_ros.resources import params_path
 
 __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "numbers", "GraphNode", "LatencyWindow", "RELIABLE",
-           "BETWEEN_NODES", "IMU_INPUT", "LATCHED", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals"]
+           "BETWEEN_NODES", "IMU_INPUT", "LATCHED", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals",
+           "tf_publisher"]
 
 #: QoS of the graph's outputs.
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -241,9 +243,10 @@ class GraphNode(Node):
         return self.get_clock().now().nanoseconds
 
     def add_input(self, name: str, topic: str, msg_type: type, rate_hz: float, handle: Callable[[Any], int],
-                  qos: QoSProfile = qos_profile_sensor_data) -> None:
+                  qos: QoSProfile = qos_profile_sensor_data, raw: bool = False) -> None:
         """Subscribe ``handle`` (returns the message stamp, raises MalformedMessageError to reject) with a
-        monitor of the input's rate, age and rejections on /diagnostics."""
+        monitor of the input's rate, age and rejections on /diagnostics; with ``raw`` it gets the message's CDR
+        bytes (a fast input decoded later, in batches)."""
         monitor = SensorMonitor(name, expected_rate_hz=rate_hz, stale_after_s=self.params["stale_after_s"])
         self._inputs[name] = (topic, msg_type, monitor)
 
@@ -255,7 +258,7 @@ class GraphNode(Node):
                 monitor.reject(now, str(exc).split(":")[0][:60])
                 self.get_logger().warning(f"{name} ({topic}): message skipped: {exc}", throttle_duration_sec=5.0)
 
-        self.create_subscription(msg_type, topic, callback, qos, callback_group=self.group)
+        self.create_subscription(msg_type, topic, callback, qos, callback_group=self.group, raw=raw)
 
     def count_frame(self, what: str, detail: str = "") -> None:
         """Account for a LiDAR frame that ends here (``frames <what>`` on /diagnostics); log why if skipped."""
@@ -293,6 +296,16 @@ class GraphNode(Node):
         statuses.append(diagnostic_status_to_msg(self.backend, int(level), f"{self.get_name()}: frames", message,
                                                  values=values))
         self._diag_pub.publish(diagnostic_array_to_msg(self.backend, now, statuses))
+
+
+def tf_publisher(node: Node) -> Any:
+    """A /tf publisher of ``node``, or None (said once in its log) where tf2_msgs is not installed (no wheel)."""
+    try:
+        tf_type = rclpy_message_class("tf2_msgs/msg/TFMessage")
+    except KeyError:
+        node.get_logger().info("tf2_msgs is not installed: nothing is broadcast on /tf")
+        return None
+    return node.create_publisher(tf_type, "/tf", RELIABLE)
 
 
 def _spin_each(nodes: Sequence[Node]) -> list[BaseException]:

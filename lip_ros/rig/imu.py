@@ -34,6 +34,7 @@ from lip_msgs_py import ImuSample, imu_sample
 from lip_ros.core.frames import GRAVITY
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_quat, rot_z
 from lip_ros.core.skeleton import Skeleton
+from lip_ros.hsc4d.sensors import suit_imu_topic
 from lip_ros.lip.sensors import IMU_TOPICS
 from lip_ros.rig.trajectory import Trajectory
 
@@ -107,7 +108,7 @@ class ImuRigConfig:
     @classmethod
     def suit(cls, skeleton: Skeleton) -> ImuRigConfig:
         """The HSC4D suit (``suit_imus``): 17 segments, 100 Hz, calibrated mounting, clock offset up to 1 s."""
-        sensors = tuple((seg, joint, f"/mocap/{seg}/imu") for seg, joint in skeleton.suit_imus.items())
+        sensors = tuple((seg, joint, suit_imu_topic(seg)) for seg, joint in skeleton.suit_imus.items())
         return cls(sensors, 100.0, shared_clock=True, max_clock_offset_s=1.0)
 
 

@@ -26,6 +26,7 @@ import yaml
 from lip_msgs_py import RosbagsBackend, array_to_cloud, imu_to_msg, odometry_to_msg
 from lip_ros.bagio import mcap_writer
 from lip_ros.core.rotations import matrix_to_quat
+from lip_ros.hsc4d.sensors import HIP_LIDAR_TOPIC, SUIT_ODOMETRY_TOPIC
 from lip_ros.outputs import GT_TOPICS, pose_messages
 from lip_ros.rig.bag import TRUTH_FILE, LogOrderWriter, Progress
 from lip_ros.rig.site_capture import SiteCapture
@@ -34,9 +35,7 @@ __all__ = ["write_site_bag", "SITE_TRUTH_FILE", "HIP_LIDAR_TOPIC", "HIP_LIDAR_FR
            "WORLD_FRAME"]
 
 SITE_TRUTH_FILE = "site_truth.npz"
-HIP_LIDAR_TOPIC = "/hip/points"
 HIP_LIDAR_FRAME = "hip_lidar"
-SUIT_ODOMETRY_TOPIC = "/mocap/odometry"
 SUIT_WORLD_FRAME = "mocap_world"
 WORLD_FRAME = "world"  # the site's frame W, of the ground truth only
 SUIT_LATENCY_NS = 5_000_000  # the suit's wireless delivery

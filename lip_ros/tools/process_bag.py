@@ -1,18 +1,23 @@
 """lip_process_bag IN OUT: run the live graph on a bag and record its outputs.
 
-Starts ``fusion_node`` (sim time), ``lip_bag_record OUT`` (the output topics and
-``/diagnostics``) and ``lip_bag_play IN --clock`` as separate processes over real
-DDS, waits until the graph's nodes have accounted for every LiDAR frame of IN (a
-pose, calibrating, or skipped with a reason, or still pending for IMU data at
-the end of the bag: the ``frames ...`` values of their ``<node>: frames``
+The bag's topics say which branch runs: a hip LiDAR (``/hip/points``) and the
+suit run the HSC4D graph (``fusion_node -p branch:=hsc4d``), the static Ouster
+(``/ouster/points``) and the DOTs the LIP graph. Starts ``fusion_node`` (sim
+time), ``lip_bag_record OUT`` (the output topics and ``/diagnostics``) and
+``lip_bag_play IN --clock`` as separate processes over real DDS, waits until
+the graph's nodes have accounted for every LiDAR frame of IN (a pose,
+calibrating, or skipped with a reason, or still pending at the end of the bag:
+the ``frames ...`` and ``pending`` values of their ``<node>: frames``
 diagnostics), stops them and prints a summary: frames in/out/skipped,
-latency percentiles, accuracy against ``/gt`` when IN has ground truth, and the
+latency percentiles, accuracy against the truth when IN has it, and the
 wall time from the start of playback to the last pose as a multiple of real
 time (``--rate`` plays the bag faster). With ``--plot`` it also draws the
-trajectory and a few skeleton frames.
+trajectory and a few skeleton frames (LIP), or the trajectory from above, its
+height over time against the truth and the suit's own odometry, and the map
+(HSC4D: :mod:`lip_ros.tools.hsc4d_outputs`).
 
-The calibration the graph solves is written to ``OUT_calibration.yaml`` beside
-OUT. A file of that name left by an earlier run is never reused silently: the
+LIP only: the calibration the graph solves is written to
+``OUT_calibration.yaml`` beside OUT. A file of that name left by an earlier run is never reused silently: the
 run refuses to start; ``--calibration FILE`` starts from a calibration on
 purpose (the graph then poses from the first frame, without the A/T-pose).
 The summary says which calibration the run used.
@@ -41,20 +46,64 @@ from lip_msgs_py.stamps import NS_PER_S
 from lip_ros.bagio import bag_span, bag_topics, read_messages
 from lip_ros.core import metrics
 from lip_ros.core.rotations import quat_to_matrix
+from lip_ros.core.skeleton import load_skeleton
+from lip_ros.hsc4d.sensors import (
+    HIP_LIDAR_TOPIC,
+    HSC4D_TOPICS,
+    MAP_TOPIC,
+    ODOMETRY_TOPIC,
+    SUIT_ODOMETRY_TOPIC,
+    suit_imu_topic,
+)
 from lip_ros.lip.calibration import load_calibration
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
 from lip_ros.nodes.lip.calibration import DOT_LATENCY_VALUE, CalibrationNode
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
+from lip_ros.tools.hsc4d_outputs import Hsc4dAccuracy, hsc4d_accuracy, plot_hsc4d
 from lip_ros.tools.ros_cli import ArgumentParser, ToolError, installed_script, run_tool, start_ros, tool_args
 
-__all__ = ["main", "ProcessSummary", "summarize_outputs"]
+__all__ = ["main", "ProcessSummary", "summarize_outputs", "Branch", "LIP", "HSC4D", "branch_of_bag"]
 
-OUTPUTS = [LIP_TOPICS.joint_states, LIP_TOPICS.root_pose, LIP_TOPICS.joint_poses, LIP_TOPICS.skeleton,
-           "/diagnostics"]
 MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their stamps are this close
-POSE_FRAMES = "pose_node: frames"  # the diagnostic status with the poses and the graph's latency
 CALIBRATION_FRAMES = f"{CalibrationNode.NAME}: frames"  # ... with the DOT latencies
+OFFSET_VALUE = "suit clock offset (ms)"  # of the HSC4D trajectory node's frames status
+
+
+@dataclass(frozen=True)
+class Branch:
+    """How one branch's graph runs on a bag: its LiDAR and other inputs, its outputs, the pose topic that marks
+    progress, the diagnostic status with the graph's latency, and the fusion_node parameters that choose it."""
+
+    name: str
+    lidar: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    pose_topic: str
+    latency_status: str
+    latency_prefix: str  # of that status's latency percentiles
+    latency_of: str  # what the latency runs to from the cloud's receipt
+    node_args: tuple[str, ...] = ()
+
+
+LIP = Branch("lip", LIDAR_TOPIC, INPUT_TOPICS,
+             (LIP_TOPICS.joint_states, LIP_TOPICS.root_pose, LIP_TOPICS.joint_poses, LIP_TOPICS.skeleton,
+              "/diagnostics"), LIP_TOPICS.root_pose, "pose_node: frames", "graph_latency_ms_", "pose published")
+HSC4D = Branch("hsc4d", HIP_LIDAR_TOPIC,
+               (HIP_LIDAR_TOPIC, SUIT_ODOMETRY_TOPIC, *map(suit_imu_topic, load_skeleton().suit_imus)),
+               (ODOMETRY_TOPIC, HSC4D_TOPICS.joint_states, HSC4D_TOPICS.root_pose, HSC4D_TOPICS.joint_poses,
+                MAP_TOPIC, "/diagnostics"), HSC4D_TOPICS.root_pose, "hsc4d_trajectory_node: frames", "latency_ms_",
+               f"{ODOMETRY_TOPIC} published", ("-p", "branch:=hsc4d"))
+POSE_FRAMES = LIP.latency_status  # the LIP diagnostic status with the poses and the graph's latency
+
+
+def branch_of_bag(bag: Path) -> Branch:
+    """The branch whose LiDAR the bag has (ToolError if neither)."""
+    topics = bag_topics(bag)
+    for branch in (HSC4D, LIP):
+        if branch.lidar in topics:
+            return branch
+    raise ToolError(f"{bag} has neither {HIP_LIDAR_TOPIC} (HSC4D) nor {LIDAR_TOPIC} (LIP)")
 
 
 @dataclass
@@ -64,6 +113,7 @@ class ProcessSummary:
     frames_in: int
     frames: dict[str, int]  # "pose", "calibrating", "skipped: <reason>", "pending" -> frames
     latency_ms: dict[str, float] = field(default_factory=dict)
+    latency_of: str = "pose published"  # what the latency runs to from the cloud's receipt
     matched: int = 0  # poses with a /gt pose at the same stamp
     translation_cm: float | None = None
     mpjpe_mm: float | None = None  # root-relative, from /lip/joint_poses
@@ -73,6 +123,8 @@ class ProcessSummary:
     bag_s: float | None = None  # duration of the input bag
     wall_s: float | None = None  # start of playback to the last pose (or the end of playback, if later)
     rate: float = 1.0  # the player's speed factor
+    hsc4d: Hsc4dAccuracy | None = None  # HSC4D: against the rig's truth
+    offset_ms: str = ""  # HSC4D: the suit's clock offset the graph found
 
     def lines(self) -> list[str]:
         """Human-readable report."""
@@ -80,8 +132,12 @@ class ProcessSummary:
         out = [f"frames in: {self.frames_in}; " + ", ".join(f"{k} {v}" for k, v in sorted(self.frames.items()))
                + (f"; not accounted for {unaccounted}" if unaccounted else "")]
         if self.latency_ms:
-            out.append("latency (cloud received -> pose published): "
+            out.append(f"latency (cloud received -> {self.latency_of}): "
                        + ", ".join(f"{k} {v:.1f} ms" for k, v in self.latency_ms.items()))
+        if self.offset_ms:
+            out.append(f"suit clock offset found from the jump: {self.offset_ms} ms")
+        if self.hsc4d is not None:
+            out += self.hsc4d.lines()
         if self.translation_cm is not None:
             out.append(f"accuracy on {self.matched} frames vs /gt: root translation {self.translation_cm:.1f} cm, "
                        f"MPJPE {self.mpjpe_mm:.1f} mm, global angular error {self.angular_deg:.1f} deg")
@@ -103,22 +159,27 @@ def _poses(bag: Path, topic: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def summarize_outputs(inputs: Path, outputs: Path) -> ProcessSummary:
-    """Frame accounting (last /diagnostics of the node) and accuracy against the inputs' /gt topics."""
+def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP) -> ProcessSummary:
+    """Frame accounting (last /diagnostics of the nodes) and accuracy against the inputs' truth."""
     last = {}  # status name -> its last values
     for m in read_messages(outputs, ["/diagnostics"]):
         last.update((s.name, s.values) for s in msg_to_diagnostics(m.msg).statuses)
-    if POSE_FRAMES not in last:
-        raise ToolError(f"{outputs} holds no diagnostics of the LIP graph ({POSE_FRAMES})")
+    if branch.latency_status not in last:
+        raise ToolError(f"{outputs} holds no diagnostics of the {branch.name} graph ({branch.latency_status})")
     frames = {k.removeprefix("frames "): int(v) for name, values in last.items() if name.endswith(": frames")
               for k, v in values.items() if k.startswith("frames ") and int(v)}
     pending = sum(int(values.get("pending", 0)) for name, values in last.items() if name.endswith(": frames"))
     if pending:  # waiting for DOT data past the end of the bag
         frames["pending"] = pending
-    latency = {k.removeprefix("graph_latency_ms_"): float(v) for k, v in last[POSE_FRAMES].items()
-               if k.startswith("graph_latency_ms_")}
-    summary = ProcessSummary(bag_topics(inputs)[LIDAR_TOPIC].count, frames, latency,
+    latency = {k.removeprefix(branch.latency_prefix): float(v) for k, v in last[branch.latency_status].items()
+               if k.startswith(branch.latency_prefix)}
+    summary = ProcessSummary(bag_topics(inputs)[branch.lidar].count, frames, latency, branch.latency_of,
                              dot_latency=last.get(CALIBRATION_FRAMES, {}).get(DOT_LATENCY_VALUE, ""))
+    if branch is HSC4D:
+        offset = next((v.get(OFFSET_VALUE) for v in last.values() if OFFSET_VALUE in v), "")
+        summary.offset_ms = "" if offset in ("", "unknown") else offset
+        summary.hsc4d = hsc4d_accuracy(inputs, outputs, round(float(offset) * 1e6) if summary.offset_ms else None)
+        return summary
     if GT_TOPICS.joint_poses not in bag_topics(inputs):
         return summary
     truth = _poses(inputs, GT_TOPICS.joint_poses)
@@ -184,7 +245,7 @@ def plot_outputs(inputs: Path, outputs: Path, png: Path) -> Path:
 class _Watch:
     """What the tool sees of the running graph: when playback started and ended, the last pose, frames accounted."""
 
-    def __init__(self, bag_start_ns: int, rate: float) -> None:
+    def __init__(self, bag_start_ns: int, rate: float, pose_topic: str) -> None:
         self.node = rclpy.create_node("lip_process_bag")
         self.bag_start_ns, self.rate = bag_start_ns, rate
         self.started: float | None = None  # monotonic s at which the player's bag time was bag_start_ns
@@ -193,7 +254,7 @@ class _Watch:
         self.accounted = 0  # frames with an outcome or pending, per the nodes' last diagnostics
         self._counts: dict[str, int] = {}  # "<node>: frames" -> frames accounted for there
         self.node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, CLOCK_QOS)
-        self.node.create_subscription(PoseStamped, LIP_TOPICS.root_pose, self._on_pose,
+        self.node.create_subscription(PoseStamped, pose_topic, self._on_pose,
                                       QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
 
@@ -242,63 +303,73 @@ def _start_calibration(out: Path, given: Path | None) -> None:
 
 def _run(argv: list[str]) -> int:
     p = ArgumentParser(prog="lip_process_bag", description=__doc__.split("\n\n")[0])
-    p.add_argument("inputs", type=Path, help="bag with /ouster/points and /dot/*/imu (and /gt/* if synthetic)")
+    p.add_argument("inputs", type=Path, help="bag with /ouster/points and /dot/*/imu (LIP) or /hip/points, "
+                                             "/mocap/*/imu and /mocap/odometry (HSC4D), and /gt/* if synthetic")
     p.add_argument("outputs", type=Path, help="bag directory to create with the graph's outputs")
     p.add_argument("--rate", type=float, default=1.0,
                    help="playback speed factor (default 1: real time; 3 plays the bag 3x faster)")
-    p.add_argument("--plot", type=Path, help="write a PNG of the trajectory and skeleton frames here")
+    p.add_argument("--plot", type=Path, help="write a PNG of the trajectory (and skeleton frames or the map) here")
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the last frames after playback")
     p.add_argument("--calibration", type=Path,
-                   help="start from this calibration (an earlier run's OUT_calibration.yaml) instead of finding one "
-                        "in the bag")
+                   help="LIP: start from this calibration (an earlier run's OUT_calibration.yaml) instead of finding "
+                        "one in the bag")
     args = p.parse_args(tool_args(argv))
     if not (args.inputs / "metadata.yaml").is_file():
         raise ToolError(f"{args.inputs} is not a rosbag2 bag directory")
     if args.outputs.exists():
         raise ToolError(f"{args.outputs} exists; choose a new directory")
-    frames_in = bag_topics(args.inputs).get(LIDAR_TOPIC)
-    if frames_in is None:
-        raise ToolError(f"{args.inputs} has no {LIDAR_TOPIC}")
+    branch = branch_of_bag(args.inputs)
+    frames_in = bag_topics(args.inputs)[branch.lidar].count
     if not args.rate > 0:
         raise ToolError(f"--rate must be > 0, got {args.rate}")
+    node_args = [*branch.node_args, "-p", "use_sim_time:=true", "-p", "diagnostics_period_s:=0.5"]
     calibration = args.outputs.with_name(args.outputs.name + "_calibration.yaml")
-    _start_calibration(calibration, args.calibration)
+    if branch is LIP:
+        _start_calibration(calibration, args.calibration)
+        node_args += ["-p", f"calibration_file:={calibration}"]
+    elif args.calibration is not None:
+        raise ToolError("--calibration is for LIP bags; the HSC4D graph finds its extrinsics from the data")
     start_ros(argv)
     first_ns, last_ns = bag_span(args.inputs)
-    watch = _Watch(first_ns, args.rate)
-    node = subprocess.Popen([installed_script("fusion_node"), "--ros-args", "-p", "use_sim_time:=true",
-                             "-p", "diagnostics_period_s:=0.5", "-p", f"calibration_file:={calibration}"])
-    recorder = subprocess.Popen([installed_script("lip_bag_record"), str(args.outputs), "--topics", *OUTPUTS],
+    watch = _Watch(first_ns, args.rate, branch.pose_topic)
+    node = subprocess.Popen([installed_script("fusion_node"), "--ros-args", *node_args])
+    recorder = subprocess.Popen([installed_script("lip_bag_record"), str(args.outputs), "--topics", *branch.outputs],
                                 stdout=subprocess.DEVNULL)
     procs = [node, recorder]
     try:
         play = subprocess.Popen([installed_script("lip_bag_play"), str(args.inputs), "--clock",
-                                 "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *INPUT_TOPICS])
+                                 "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *branch.inputs])
         procs.append(play)
         watch.spin_while(lambda: play.poll() is None, float("inf"))
         if play.returncode != 0:
             raise ToolError("lip_bag_play failed")
-        watch.spin_while(lambda: watch.accounted < frames_in.count and node.poll() is None, args.timeout)
+        watch.spin_while(lambda: watch.accounted < frames_in and node.poll() is None, args.timeout)
         time.sleep(1.0)  # one more diagnostics period reaches the recorder
     finally:
         for proc in reversed(procs):  # the player if still running, the recorder, the node
             proc.send_signal(signal.SIGINT)
             proc.wait(timeout=30)
         watch.node.destroy_node()
-    summary = summarize_outputs(args.inputs, args.outputs)
+    summary = summarize_outputs(args.inputs, args.outputs, branch)
     summary.bag_s, summary.wall_s, summary.rate = (last_ns - first_ns) / NS_PER_S, watch.wall_s(), args.rate
-    if args.calibration is not None:
-        summary.calibration = f"loaded from {args.calibration} (copied to {calibration})"
-    elif calibration.is_file():
-        headings = load_calibration(calibration).headings
-        summary.calibration = (f"solved from the bag's A-pose and T-pose (DOT headings: {headings}), "
-                               f"saved to {calibration}")
-    else:
-        summary.calibration = "none: no A-pose / T-pose calibration was found in the bag"
+    if branch is LIP:
+        summary.calibration = _calibration_used(calibration, args.calibration)
     print("\n".join(summary.lines()))
     if args.plot:
-        print(f"plot: {plot_outputs(args.inputs, args.outputs, args.plot)}")
+        png = (plot_outputs(args.inputs, args.outputs, args.plot) if branch is LIP
+               else plot_hsc4d(args.outputs, summary.hsc4d, args.plot))
+        print(f"plot: {png}")
     return 0
+
+
+def _calibration_used(calibration: Path, given: Path | None) -> str:
+    """What the LIP run's summary says of its calibration."""
+    if given is not None:
+        return f"loaded from {given} (copied to {calibration})"
+    if calibration.is_file():
+        headings = load_calibration(calibration).headings
+        return f"solved from the bag's A-pose and T-pose (DOT headings: {headings}), saved to {calibration}"
+    return "none: no A-pose / T-pose calibration was found in the bag"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -169,7 +169,7 @@ def test_a_restarted_graph_resumes_mid_capture(ros_node, tmp_path):
             player.kill()
     assert "resuming: the performer was last seen" in out, out
     if importlib.util.find_spec("tf2_msgs") is None:  # no /tf without tf2_msgs: said once, and the graph goes on
-        assert "tf2_msgs is not installed: the pelvis is not broadcast on /tf" in out
+        assert "tf2_msgs is not installed: nothing is broadcast on /tf" in out
     # a plain rclpy subscriber got JointStates that robot_state_publisher can use with the shipped URDF
     urdf_joints = [j.get("name") for j in ET.parse(params_path(URDF_FILE)).getroot().iter("joint")
                    if j.get("type") == "revolute"]

@@ -52,6 +52,7 @@ from lip_ros.nodes.base import (
     ParameterError,
     positive,
     run_nodes,
+    tf_publisher,
 )
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
 from lip_ros.nodes.lip.calibration import CalibrationNode
@@ -110,7 +111,7 @@ class PoseNode(GraphNode):
         self._hri_frame = f"body_{body}" if body else ""
         self._hri_pub = self.create_publisher(rclpy_message_class("sensor_msgs/msg/JointState"),
                                               f"/humans/bodies/{body}/joint_states", RELIABLE) if body else None
-        self._tf_pub = self._tf_publisher() if p["publish_tf"] or body else None
+        self._tf_pub = tf_publisher(self) if p["publish_tf"] or body else None
         subscribe_ground(self, p["ground_topic"], self._on_ground)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
                        lambda msg: self._on_input(_POINTS, msg), BETWEEN_NODES)
@@ -118,14 +119,6 @@ class PoseNode(GraphNode):
             self.add_input(f"bone {name}", topic, Imu, p["lidar_rate_hz"],
                            lambda msg, name=name: self._on_input(name, msg), BETWEEN_NODES)
         self.get_logger().info(f"ready; weights {p['weights'] or '(shipped)'}")
-
-    def _tf_publisher(self) -> Any:
-        try:
-            tf_type = rclpy_message_class("tf2_msgs/msg/TFMessage")
-        except KeyError:
-            self.get_logger().info("tf2_msgs is not installed: the pelvis is not broadcast on /tf")
-            return None
-        return self.create_publisher(tf_type, "/tf", RELIABLE)
 
     def _on_ground(self, level: np.ndarray) -> None:
         self.stage.level = level

@@ -1,0 +1,37 @@
+"""The HSC4D branch's sensors and topic names (the contract's): the one source of every default topic.
+
+The node parameters in ``params/hsc4d.yaml`` restate these (a test keeps them
+equal); remap or set parameters to use other names.
+"""
+
+from __future__ import annotations
+
+from lip_ros.outputs import PoseTopics
+
+__all__ = ["HIP_LIDAR_TOPIC", "SUIT_ODOMETRY_TOPIC", "suit_imu_topic", "ODOMETRY_TOPIC", "MAP_TOPIC",
+           "SUIT_CLOCK_OFFSET_TOPIC", "MAP_FRAME", "PELVIS_FRAME", "HSC4D_TOPICS"]
+
+#: The hip-worn Ouster's PointCloud2.
+HIP_LIDAR_TOPIC = "/hip/points"
+#: The suit's own root trajectory (nav_msgs/Odometry, its clock).
+SUIT_ODOMETRY_TOPIC = "/mocap/odometry"
+
+
+def suit_imu_topic(segment: str) -> str:
+    """The sensor_msgs/Imu topic of one suit segment (``suit_imus`` of the skeleton)."""
+    return f"/mocap/{segment}/imu"
+
+
+#: Out: the fused pelvis trajectory (nav_msgs/Odometry in :data:`MAP_FRAME`).
+ODOMETRY_TOPIC = "/hsc4d/odometry"
+#: Out (latched): the scene map around the wearer (PointCloud2 in :data:`MAP_FRAME`).
+MAP_TOPIC = "/hsc4d/map"
+#: Out (latched), between the graph's nodes: the suit's clock offset once the jump gave it (std_msgs/Int64, ns;
+#: suit stamp = LiDAR stamp + offset).
+SUIT_CLOCK_OFFSET_TOPIC = "/hsc4d/suit_clock_offset"
+#: The gravity-aligned frame of every output (z up, origin on the ground under the first pelvis position).
+MAP_FRAME = "map"
+#: The fused pelvis's frame (the odometry's child frame and the /tf child).
+PELVIS_FRAME = "pelvis"
+#: The fused body's pose outputs.
+HSC4D_TOPICS = PoseTopics("/hsc4d/joint_states", "/hsc4d/root_pose", "/hsc4d/joint_poses")

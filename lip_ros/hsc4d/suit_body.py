@@ -1,0 +1,134 @@
+"""The fused body: the suit's 17 segment orientations on the fused pelvis trajectory, in ``map`` (ROS-free).
+
+Each suit IMU reports the global rotation of one joint (``suit_imus`` of the
+skeleton) in the suit's inertial frame I, whose heading is unknown and
+drifts. The fused trajectory gives the pelvis's pose in ``map``, T_map_P, at a
+sweep's reference time; with the suit's own pelvis rotation R_I_P at that
+moment, R_map_I = R_map_P R_I_P^T turns every segment into ``map`` (I's heading
+cancels). The seven joints the suit does not measure get their rotation from
+their neighbours: a chain between two measured joints (spine1 and spine2
+between the pelvis and spine3, the neck between spine3 and the head) shares
+the turn between them evenly; an end joint (feet, hands) follows its parent.
+Forward kinematics from the fused pelvis position, on the contract skeleton
+scaled to the performer (``body_scale``: the size the suit's software is
+given), places the 24 joints. The suit's samples are stamped on its own clock:
+ask at LiDAR-clock time plus the offset the jump gave.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from lip_ros.core.imu_sync import FrameStatus, ImuSampleLike, ImuSynchronizer, SyncConfig
+from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, quat_to_matrix
+from lip_ros.core.skeleton import NUM_JOINTS, Skeleton, forward_kinematics
+
+__all__ = ["SuitBodyConfig", "BodyPose", "SuitBody", "unmeasured_chains"]
+
+
+@dataclass(frozen=True)
+class SuitBodyConfig:
+    """Buffer bounds of the suit's samples and the performer's size."""
+
+    #: samples kept per segment: 20 s at 100 Hz, for the poses of the sweeps held until the jump (up to
+    #: TrajectoryConfig.hold_s, 15 s) and the suit's clock offset (up to 1 s)
+    capacity: int = 2048
+    max_gap_ns: int = 50_000_000  # widest gap interpolated across (four lost samples at 100 Hz)
+    max_hold_ns: int = 50_000_000  # a segment's last sample is held this long past it, then it is missing
+    body_scale: float = 1.0  # the performer's size relative to the contract skeleton
+
+    def __post_init__(self) -> None:
+        if self.capacity < 2 or self.max_gap_ns <= 0 or self.max_hold_ns < 0 or not self.body_scale > 0.0:
+            raise ValueError(f"invalid {self}")
+
+
+@dataclass(frozen=True)
+class BodyPose:
+    """The body at one moment in ``map``: local rotations (24, 3, 3) (the root's is its global one), global
+    rotations (24, 3, 3) and joint positions (24, 3)."""
+
+    local_rot: np.ndarray
+    glob_rot: np.ndarray
+    joints: np.ndarray
+
+
+def unmeasured_chains(skeleton: Skeleton, measured: set[int]) -> list[tuple[int, list[int]]]:
+    """The joints not measured, as (the measured joint above them, the chain of joints below it down to and
+    including the next measured joint, or down to an unmeasured end joint). Each unmeasured joint is in exactly
+    one chain; a branching below an unmeasured joint is not supported (ValueError)."""
+    out = []
+    for top in sorted(measured):
+        for child in skeleton.children(top):
+            if child in measured:
+                continue
+            chain = [child]
+            while chain[-1] not in measured and len(skeleton.children(chain[-1])) == 1:
+                chain.append(skeleton.children(chain[-1])[0])
+            if chain[-1] not in measured and skeleton.children(chain[-1]):
+                raise ValueError(f"joint {skeleton.names[chain[-1]]} branches but is not measured")
+            out.append((top, chain))
+    return out
+
+
+class SuitBody:
+    """The suit's segments, buffered per segment, posed on the fused pelvis."""
+
+    def __init__(self, skeleton: Skeleton, config: SuitBodyConfig | None = None) -> None:
+        self.config = c = config or SuitBodyConfig()
+        self._contract = skeleton
+        self.skeleton = skeleton.scaled(c.body_scale)
+        self.segments = tuple(skeleton.suit_imus)
+        self._joint = np.array([skeleton.index(skeleton.suit_imus[s]) for s in self.segments])
+        if skeleton.index("pelvis") not in self._joint:
+            raise ValueError("the suit has no pelvis sensor")
+        self._pelvis = self.segments[list(self._joint).index(skeleton.index("pelvis"))]
+        measured = set(int(j) for j in self._joint)
+        self._chains = unmeasured_chains(skeleton, measured)
+        self.sync = ImuSynchronizer(self.segments, SyncConfig(capacity=c.capacity, max_gap_ns=c.max_gap_ns,
+                                                              max_hold_ns=c.max_hold_ns))
+
+    def add(self, segment: str, samples: Sequence[ImuSampleLike]) -> list[str | None]:
+        """Samples of ``segment`` (suit clock; many at once cost about what one does); for each, why it was
+        rejected, None if kept."""
+        if not samples:
+            return []
+        rows, codes = self.sync.validate(samples)
+        return [self.sync.insert(segment, int(s.stamp_ns), row, int(code))
+                for s, row, code in zip(samples, rows, codes, strict=True)]
+
+    def scale_to_pelvis_height(self, height_m: float) -> float:
+        """Scale the skeleton so that its pelvis stands ``height_m`` above its soles (e.g. the fused pelvis's
+        height above the ground while the wearer stands still); the scale relative to the contract skeleton."""
+        if not (np.isfinite(height_m) and height_m > 0.0):
+            raise ValueError(f"pelvis height must be > 0, got {height_m}")
+        scale = float(height_m) / self._contract.pelvis_height
+        self.skeleton = self._contract.scaled(scale)
+        return scale
+
+    def pose(self, suit_ns: int, T_map_P: np.ndarray) -> tuple[BodyPose | None, str]:
+        """The body at suit-clock time ``suit_ns`` on the fused pelvis pose ``T_map_P`` (4, 4); (None, why) when
+        a segment has no sample near it, else (pose, "") or (pose, which segments were held)."""
+        result = self.sync.query(int(suit_ns))
+        if result.frame_status == FrameStatus.SKIP:
+            return None, result.reason
+        R_I = quat_to_matrix(result.quat)  # (17, 3, 3)
+        R_map_I = T_map_P[:3, :3] @ R_I[self.segments.index(self._pelvis)].T
+        glob = np.full((NUM_JOINTS, 3, 3), np.nan)
+        glob[self._joint] = R_map_I @ R_I
+        parents = self.skeleton.parents
+        for top, chain in self._chains:
+            if chain[-1] in self._joint:  # between two measured joints: share the turn evenly
+                turn = matrix_to_axis_angle(glob[top].T @ glob[chain[-1]]) / len(chain)
+                for k, j in enumerate(chain[:-1], start=1):
+                    glob[j] = glob[top] @ axis_angle_to_matrix(k * turn)
+            else:
+                for j in chain:
+                    glob[j] = glob[parents[j]]
+        local = np.empty_like(glob)
+        local[0] = glob[0]
+        local[1:] = np.swapaxes(glob[parents[1:]], -1, -2) @ glob[1:]
+        glob, joints = forward_kinematics(self.skeleton, local, T_map_P[:3, 3])
+        return BodyPose(local, glob, joints), "" if result.frame_status == FrameStatus.OK else result.reason

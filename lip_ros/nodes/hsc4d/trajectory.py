@@ -1,0 +1,292 @@
+"""hsc4d_trajectory_node: the hip LiDAR's odometry fused with the suit, live (jump sync, kiss-icp, pose graph).
+
+Takes the hip Ouster's clouds, the suit's pelvis IMU and the suit's own
+odometry (each on its own clock) into a
+:class:`lip_ros.hsc4d.trajectory.TrajectoryPipeline`. Until the performer's
+jump is seen in both the LiDAR and the suit it holds the sweeps and publishes
+nothing (``/diagnostics`` says what it waits for); then it publishes the suit's
+clock offset (latched, for ``hsc4d_body_node``) and, for every sweep, the fused
+pelvis pose on ``/hsc4d/odometry`` (nav_msgs/Odometry in ``map``: gravity
+aligned, z up, origin on the ground under the first pelvis position; stamped
+with the sweep's reference time on the LiDAR's clock; twist from the last
+pose, in the pelvis frame) and, where tf2_msgs is installed, ``map`` ->
+``pelvis`` on /tf. Every ``map_period_s`` the local map around the wearer
+(kiss-icp's voxel map) goes out on ``/hsc4d/map`` (reliable, transient local).
+
+The sweeps held until the jump are registered a few with each new sweep (not
+in one long callback, during which the suit's samples would overflow their
+queues); a sweep waits (at most ``suit_wait_s`` after it arrived) until the
+suit's samples cover it, so that its deskew and initial guess have the suit's
+motion whatever order the transport delivers in. A sweep stamped more than a second
+before the last one (a bag started again, a clock jump) starts the trajectory
+over; a sweep not after the last one otherwise is skipped.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from nav_msgs.msg import Odometry
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import Imu, PointCloud2
+from std_msgs.msg import Int64
+
+from lip_msgs_py import (
+    DiagnosticLevel,
+    MalformedMessageError,
+    cloud_to_xyz_time,
+    msg_to_imu,
+    msg_to_odometry,
+    odometry_to_msg,
+    read_header,
+    tf_message,
+    transform_stamped_to_msg,
+    xyz_to_cloud,
+)
+from lip_ros.core.rotations import matrix_to_axis_angle, matrix_to_quat
+from lip_ros.hsc4d.mount import HipMountPrior
+from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
+from lip_ros.nodes.base import (
+    IMU_INPUT,
+    LATCHED,
+    RELIABLE,
+    GraphNode,
+    LatencyWindow,
+    Param,
+    ParameterError,
+    numbers,
+    positive,
+    run_nodes,
+    tf_publisher,
+)
+from lip_ros.nodes.hsc4d import HSC4D_PARAMS_FILE
+
+__all__ = ["TrajectoryNode", "main"]
+
+_DROPPED = ("sweeps dropped waiting for the jump", "sweeps dropped waiting for the map frame")
+_RESTART_NS = 1_000_000_000  # a sweep this far before the last one starts the trajectory over
+_MAX_TWIST_DT_S = 0.5  # the twist is left zero across a longer gap between outputs
+#: SensorDataQoS, deep enough for the longest callback (registering a few sweeps while the rest of the process also
+#: wants the interpreter: up to about a second measured) at 10-20 Hz clouds and 100 Hz suit samples
+_CLOUD_INPUT = QoSProfile(depth=20, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability)
+_SUIT_INPUT = QoSProfile(depth=200, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability)
+#: sweeps registered per sweep taken: the new one, or the oldest held one and two more of the backlog
+_REGISTER_PER_SWEEP = 3
+
+
+@dataclass(frozen=True)
+class _Sweep:
+    stamp_ns: int
+    points: np.ndarray
+    point_ns: np.ndarray
+    received: float  # monotonic s
+
+
+class TrajectoryNode(GraphNode):
+    """The fused pelvis trajectory of the HSC4D graph, its map and the suit's clock offset."""
+
+    NAME = "hsc4d_trajectory_node"
+    PARAMS_FILE = HSC4D_PARAMS_FILE
+    PARAMS = {
+        "lidar_topic": Param("input: the hip Ouster's PointCloud2 (per-point t in ns from the stamp)"),
+        "pelvis_imu_topic": Param("input: the suit's pelvis sensor_msgs/Imu"),
+        "suit_odometry_topic": Param("input: the suit's own nav_msgs/Odometry"),
+        "suit_rate_hz": Param("expected rate of the suit's topics", positive),
+        "odometry_topic": Param("out: the fused pelvis trajectory (nav_msgs/Odometry in frame_id)"),
+        "map_topic": Param("out (latched): the map around the wearer (PointCloud2 in frame_id)"),
+        "offset_topic": Param("out (latched): the suit's clock offset in ns (std_msgs/Int64)"),
+        "frame_id": Param("the outputs' frame (gravity aligned, origin on the ground under the first pelvis)"),
+        "child_frame_id": Param("the fused pelvis's frame (the odometry's child and the /tf child)"),
+        "publish_tf": Param("broadcast frame_id -> child_frame_id on /tf (needs tf2_msgs)"),
+        "map_period_s": Param("period of the map output (steady time)", positive),
+        "suit_wait_s": Param("a sweep waits at most this long after arriving for the suit's samples to cover it",
+                             positive),
+        "max_waiting_sweeps": Param("sweeps that may wait for the suit; the oldest goes on without it", positive),
+        "mount_lever_m": Param("nominal LiDAR origin in the pelvis frame (x left, y up, z forward), m", numbers(3)),
+        "mount_tilt_up_deg": Param("nominal tilt up of the LiDAR on the hip, deg"),
+        "hold_s": Param("sweeps held while waiting for the jump (older ones are dropped and counted)", positive),
+        "map_after_s": Param("registered capture (the wearer standing still) before the map frame is fixed",
+                             lambda v: None if v >= 0 else f"must be >= 0, got {v}"),
+    }
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NAME, **kwargs)
+        p = self.params
+        try:
+            self._config = TrajectoryConfig(
+                mount=HipMountPrior(tuple(map(float, p["mount_lever_m"])), float(p["mount_tilt_up_deg"])),
+                hold_s=float(p["hold_s"]), map_after_s=float(p["map_after_s"]))
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from exc
+        self.pipeline = TrajectoryPipeline(self._config)
+        self._waiting: deque[_Sweep] = deque()
+        self._suit_ns = {"imu": None, "odometry": None}  # newest accepted suit stamps
+        self._dropped = 0  # of the pipeline's drops, already counted as frames
+        self._last_ns: int | None = None  # of the last sweep taken
+        self._last_received = 0.0  # monotonic s of the last cloud
+        self._last_step: TrajectoryStep | None = None
+        self._map_stamp_ns: int | None = None
+        self._restarts = 0
+        self._published = 0
+        self._latency = LatencyWindow()  # cloud received -> odometry published, sweeps output on arrival
+        self._odometry_pub = self.create_publisher(Odometry, p["odometry_topic"], RELIABLE)
+        self._map_pub = self.create_publisher(PointCloud2, p["map_topic"], LATCHED)
+        self._offset_pub = self.create_publisher(Int64, p["offset_topic"], LATCHED)
+        self._tf_pub = tf_publisher(self) if p["publish_tf"] else None
+        self.add_input("hip lidar", p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud, _CLOUD_INPUT)
+        self.add_input("suit pelvis imu", p["pelvis_imu_topic"], Imu, p["suit_rate_hz"], self._on_pelvis, _SUIT_INPUT)
+        self.add_input("suit odometry", p["suit_odometry_topic"], Odometry, p["suit_rate_hz"], self._on_suit_odometry,
+                       _SUIT_INPUT)
+        self.create_timer(0.02, self._drain, self.group, clock=self.steady)
+        self.create_timer(p["map_period_s"], self._publish_map, self.group, clock=self.steady)
+        self.get_logger().info("ready; waiting for the performer's jump to sync the suit's clock")
+
+    def _on_cloud(self, msg: PointCloud2) -> int:
+        received = self._last_received = time.monotonic()
+        stamp_ns, _ = read_header(msg)
+        try:
+            points, t = cloud_to_xyz_time(msg)
+        except MalformedMessageError:
+            self.count_frame("skipped: malformed cloud")
+            raise
+        if points.shape[0] == 0:
+            self.count_frame("skipped: empty cloud", f"{stamp_ns}: no finite point")
+            return stamp_ns
+        self._waiting.append(_Sweep(stamp_ns, points.astype(np.float64), stamp_ns + t.astype(np.int64), received))
+        while len(self._waiting) > self.params["max_waiting_sweeps"]:
+            self._take(self._waiting.popleft())  # goes on with the suit data there is
+        self._drain()
+        return stamp_ns
+
+    def _on_pelvis(self, msg: Imu) -> int:
+        sample = msg_to_imu(msg)
+        reason = self.pipeline.add_pelvis_imu(sample)
+        if reason is not None:
+            raise MalformedMessageError(reason)
+        self._suit_ns["imu"] = sample.stamp_ns
+        return sample.stamp_ns
+
+    def _on_suit_odometry(self, msg: Odometry) -> int:
+        odometry = msg_to_odometry(msg)
+        reason = self.pipeline.add_suit_odometry(odometry.stamp_ns, odometry.position, odometry.quat)
+        if reason is not None:
+            raise MalformedMessageError(reason)
+        self._suit_ns["odometry"] = odometry.stamp_ns
+        return odometry.stamp_ns
+
+    def _suit_covers(self, sweep: _Sweep) -> bool:
+        """Whether both suit streams reached the sweep's last point (always, before the offset is known: held)."""
+        offset = self.pipeline.offset_ns
+        if offset is None:
+            return True
+        end = int(sweep.point_ns.max()) + offset
+        return all(s is not None and s >= end for s in self._suit_ns.values())
+
+    def _drain(self) -> None:
+        """Take the waiting sweeps the suit covers, or that waited long enough; else register one sweep of the
+        pipeline's backlog (the sweeps held until the jump), one per call so that the suit's samples keep coming
+        in between."""
+        now = time.monotonic()
+        taken = False
+        while self._waiting and (self._suit_covers(self._waiting[0])
+                                 or now - self._waiting[0].received >= self.params["suit_wait_s"]):
+            self._take(self._waiting.popleft())
+            taken = True
+        if not taken and now - self._last_received >= self.params["suit_wait_s"]:  # no sweeps coming in
+            for step in self.pipeline.catch_up(1):
+                self._publish(step, None)
+
+    def _take(self, sweep: _Sweep) -> None:
+        """Give one sweep to the pipeline and publish what comes out."""
+        if self._last_ns is not None and sweep.stamp_ns < self._last_ns - _RESTART_NS:
+            self._restart(sweep.stamp_ns)
+        if self._last_ns is not None and sweep.stamp_ns <= self._last_ns:
+            self.count_frame("skipped: not after the last sweep", f"{sweep.stamp_ns} <= {self._last_ns}")
+            return
+        self._last_ns = sweep.stamp_ns
+        synced = self.pipeline.offset_ns is not None
+        steps = self.pipeline.add_sweep(sweep.points, sweep.point_ns, sweep.stamp_ns, max_register=_REGISTER_PER_SWEEP)
+        if not synced and self.pipeline.offset_ns is not None:
+            offset = int(self.pipeline.offset_ns)
+            self._offset_pub.publish(Int64(data=offset))
+            self.get_logger().info(f"jump seen: the suit's clock is {offset * 1e-6:+.1f} ms from the LiDAR's")
+        dropped = sum(self.pipeline.counts[k] for k in _DROPPED)
+        for _ in range(dropped - self._dropped):
+            self.count_frame("skipped: held too long (no jump or map frame)")
+        self._dropped = dropped
+        for step in steps:
+            self._publish(step, sweep.received if step.sweep_ns == sweep.stamp_ns else None)
+
+    def _restart(self, stamp_ns: int) -> None:
+        """The clock went back: a new trajectory (the sweeps waiting in the old one are counted as skipped)."""
+        for _ in range(self.pipeline.waiting):
+            self.count_frame("skipped: trajectory restarted")
+        self.get_logger().warning(f"sweep at {stamp_ns} ns is over a second before the last ({self._last_ns} ns): "
+                                  "the clock jumped back; starting over, waiting for a jump")
+        self.pipeline = TrajectoryPipeline(self._config)
+        self._suit_ns = {"imu": None, "odometry": None}
+        self._last_ns, self._last_step, self._dropped = None, None, 0
+        self._restarts += 1
+
+    def _publish(self, step: TrajectoryStep, received: float | None) -> None:
+        """The fused pose of one sweep: odometry, /tf; its latency if its cloud arrived just now."""
+        p = self.params
+        R, position = step.pelvis[:3, :3], step.pelvis[:3, 3]
+        quat = matrix_to_quat(R)
+        linear = angular = None
+        last = self._last_step
+        if last is not None and 0 < step.stamp_ns - last.stamp_ns <= _MAX_TWIST_DT_S * 1e9:
+            dt = (step.stamp_ns - last.stamp_ns) * 1e-9
+            linear = R.T @ (position - last.pelvis[:3, 3]) / dt
+            angular = matrix_to_axis_angle(last.pelvis[:3, :3].T @ R) / dt
+        self._last_step = step
+        self._odometry_pub.publish(odometry_to_msg(self.backend, step.stamp_ns, p["frame_id"], p["child_frame_id"],
+                                                   position, quat, linear, angular))
+        if self._tf_pub is not None:
+            self._tf_pub.publish(tf_message(self.backend, [transform_stamped_to_msg(
+                self.backend, step.stamp_ns, p["frame_id"], p["child_frame_id"], position, quat)]))
+        self._published += 1
+        if received is not None:
+            self._latency.add(time.monotonic() - received)
+
+    def _publish_map(self) -> None:
+        last = self._last_step
+        if last is None or last.stamp_ns == self._map_stamp_ns:
+            return
+        points = self.pipeline.map_points()
+        if points is None:
+            return
+        self._map_pub.publish(xyz_to_cloud(self.backend, points.astype(np.float32), last.stamp_ns,
+                                           self.params["frame_id"]))
+        self._map_stamp_ns = last.stamp_ns
+
+    def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
+        """The trajectory's state, the suit's clock offset, the mounting's estimate, what was not believed."""
+        pipe = self.pipeline
+        level = DiagnosticLevel.OK if pipe.status == "tracking" else DiagnosticLevel.WARN
+        offset = pipe.offset_ns
+        values: dict[str, Any] = {
+            "suit clock offset (ms)": "unknown" if offset is None else f"{offset * 1e-6:.1f}",
+            "mounting levelled by (deg)": f"{pipe.mount_levelled_deg:.2f}",
+            "mounting turned about the body by (deg)": f"{pipe.mount_yaw_deg:.2f}",
+            "stride scale of the suit": f"{pipe.stride_scale.value:.3f}",
+            "odometry published": self._published,
+            "restarts": self._restarts,
+            "pending": pipe.waiting + len(self._waiting),
+            **{k: v for k, v in sorted(pipe.counts.items()) if k not in _DROPPED},
+            **self._latency.values("latency_ms"),
+        }
+        return level, pipe.status, values
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run lip_ros hsc4d_trajectory_node``."""
+    return run_nodes(TrajectoryNode.NAME, __doc__.split("\n\n")[0], [TrajectoryNode], [TrajectoryNode], argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
