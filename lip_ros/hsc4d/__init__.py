@@ -1,6 +1,6 @@
 """The HSC4D branch, ROS-free: a hip-worn Ouster and a 17-IMU suit ("Human-centered 4D Scene Capture").
 
-Being built (its own issue). The live trajectory, :mod:`~lip_ros.hsc4d.trajectory`,
+Partly built (its own issue). The live trajectory, :mod:`~lip_ros.hsc4d.trajectory`,
 puts together: :mod:`~lip_ros.hsc4d.jump_sync` (the suit's clock from the
 jump) with :mod:`~lip_ros.hsc4d.sweep_height` (the LiDAR's height from each
 sweep's ground); :mod:`~lip_ros.hsc4d.pelvis_rotation` (the LiDAR's rotation
@@ -9,9 +9,11 @@ and vertical motion from the suit's pelvis IMU) and
 :mod:`~lip_ros.hsc4d.lidar_odometry` (kiss-icp, the one module that imports
 it); :mod:`~lip_ros.hsc4d.map_frame`; :mod:`~lip_ros.hsc4d.mount` (the nominal
 mounting and its estimate); :mod:`~lip_ros.hsc4d.pose_graph` (gtsam, the one
-module that imports it). :mod:`~lip_ros.hsc4d.evaluation` measures it on rig
-captures against the paper's baselines. To come: the scene-aware optimisation
-(foot contact, sliding, smoothness) and the offline map. Like :mod:`lip_ros.lip`
+module that imports it). :mod:`~lip_ros.hsc4d.suit_body` poses the suit's
+segments on the fused pelvis; :mod:`~lip_ros.hsc4d.sensors` names the topics.
+:mod:`~lip_ros.hsc4d.evaluation` measures the trajectory on rig captures
+against the paper's baselines. To come: the scene-aware optimisation (foot
+contact, sliding, smoothness) and the offline map. Like :mod:`lip_ros.lip`
 it uses :mod:`lip_ros.core` and never imports the other branch; its nodes go in
 :mod:`lip_ros.nodes.hsc4d`.
 """

@@ -1,0 +1,137 @@
+"""The live HSC4D graph on rig captures: latency, real-time factor, accuracy, CPU and memory, at 10 and 20 Hz.
+
+For each ``--rates`` (LiDAR Hz), an HSC4D rig capture (``lip_rig site-bag``,
+OS1-64 x 1024, ``--seconds`` long, ``--seed``; made once into ``--bag-dir`` and
+reused) goes through ``lip_process_bag`` (player, ``fusion_node -p
+branch:=hsc4d`` with its body-node child, recorder: separate processes over
+DDS, in real time). Printed per rate: its summary (frames accounted for, cloud
+received -> ``/hsc4d/odometry`` published p50/p90/p99/max as the trajectory node
+reports it, the wall time as a multiple of real time, ATE and MPJPE against the
+rig's truth) and, sampled from /proc every 0.2 s while it runs, the CPU (% of
+one core) and RSS (start of playback, end, peak) of the trajectory node's
+process and of the body node's.
+
+DDS stays on loopback in a random ``ROS_DOMAIN_ID`` unless set. Progress on
+stderr, a table on stdout.
+
+Run:
+  python benchmarks/bench_hsc4d_graph.py [--rates 10 20] [--seconds 30] [--seed 3] [--bag-dir out/bench_hsc4d]
+      [--json out/bench_hsc4d_graph.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_graph import SAMPLE_S, ProcUsage  # noqa: E402
+
+BIN = Path(sys.executable).parent
+_FIGURES = {
+    "frames": r"frames in: (\d+); pose (\d+)",
+    "latency_ms": r"published\): p50 ([\d.]+) ms, p90 ([\d.]+) ms, p99 ([\d.]+) ms, max ([\d.]+) ms",
+    "real_time_x": r", ([\d.]+)x real time",
+    "ate_cm": r"pelvis ATE ([\d.]+) cm",
+    "mpjpe_mm": r"MPJPE ([\d.]+) mm",
+}
+
+
+def progress(text: str) -> None:
+    """A progress line on stderr."""
+    print(f"bench_hsc4d_graph: {text}", file=sys.stderr, flush=True)
+
+
+def capture(bag_dir: Path, seed: int, seconds: float, rate: int) -> Path:
+    """The rig capture for one LiDAR rate (made on first use)."""
+    bag = bag_dir / f"site_{seed}_{int(seconds)}s_{rate}hz"
+    if not (bag / "metadata.yaml").is_file():
+        progress(f"making {bag} (about {seconds * rate * 0.18:.0f} s)")
+        subprocess.run([BIN / "lip_rig", "site-bag", "--seed", str(seed), "--seconds", str(seconds), "--rate",
+                        str(float(rate)), "--out", str(bag), "--quiet"], check=True)
+    return bag
+
+
+def _graph_pids() -> dict[str, int]:
+    """The trajectory node's process (fusion_node -p branch:=hsc4d) and the body node's (its child)."""
+    out = {}
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            cmd = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if "fusion_node" in cmd and "branch:=hsc4d" in cmd and "lip_ros.nodes.hsc4d.body" not in cmd:
+            out["trajectory (fusion_node)"] = int(proc.name)
+        elif "lip_ros.nodes.hsc4d.body" in cmd:
+            out["body (child)"] = int(proc.name)
+    return out
+
+
+def run(bag: Path, out: Path) -> dict:
+    """``lip_process_bag`` on ``bag``; its figures and the graph processes' CPU and memory."""
+    proc = subprocess.Popen([BIN / "lip_process_bag", str(bag), str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, text=True)
+    usage: dict[str, ProcUsage] = {}
+    start = time.monotonic()
+    while proc.poll() is None:
+        for name, pid in _graph_pids().items():
+            usage.setdefault(name, ProcUsage(name, pid)).sample(time.monotonic())
+        time.sleep(SAMPLE_S)
+    stdout = proc.stdout.read()
+    if proc.returncode != 0:
+        raise RuntimeError(f"lip_process_bag failed:\n{stdout}")
+    figures: dict = {"summary": stdout.strip().splitlines()}
+    for key, pattern in _FIGURES.items():
+        m = re.search(pattern, stdout)
+        figures[key] = [float(g) for g in m.groups()] if m else None
+    for name, u in usage.items():
+        s = u.summary(start, time.monotonic())
+        figures[name] = {"cpu_pct": round(s["cpu_pct"], 1), "rss_first_mb": round(u.rss_kb[0] / 1024, 1),
+                         "rss_last_mb": round(u.rss_kb[-1] / 1024, 1), "peak_mb": round(s["hwm_mb"], 1)}
+    return figures
+
+
+def main() -> int:
+    """Command line."""
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--rates", type=int, nargs="+", default=[10, 20], choices=[10, 20])
+    p.add_argument("--seconds", type=float, default=30.0)
+    p.add_argument("--seed", type=int, default=3)
+    p.add_argument("--bag-dir", type=Path, default=Path("out/bench_hsc4d"))
+    p.add_argument("--json", type=Path)
+    args = p.parse_args()
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
+    args.bag_dir.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for rate in args.rates:
+        bag = capture(args.bag_dir, args.seed, args.seconds, rate)
+        out = args.bag_dir / f"outputs_{rate}hz_{int(time.time())}"
+        progress(f"{rate} Hz: lip_process_bag {bag.name} (real time, {args.seconds:.0f} s)")
+        results[rate] = run(bag, out)
+    print(f"load average (1 min) at the end: {os.getloadavg()[0]:.1f}")
+    for rate, r in results.items():
+        print(f"--- {rate} Hz, {args.seconds:.0f} s, seed {args.seed}")
+        print("\n".join(f"  {line}" for line in r["summary"] if not line.startswith("plot")))
+        for name in ("trajectory (fusion_node)", "body (child)"):
+            if name in r:
+                u = r[name]
+                print(f"  {name}: CPU {u['cpu_pct']:.0f} % of a core, RSS {u['rss_first_mb']:.0f} -> "
+                      f"{u['rss_last_mb']:.0f} MB (peak {u['peak_mb']:.0f} MB)")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
