@@ -29,7 +29,7 @@ demo: $(INSTALLED)
 	$(VENV)/bin/lip_process_bag bags/demo_walk $(OUT)/demo_walk --plot $(OUT)/demo_walk.png
 
 # The HSC4D demo capture: 30 s of the rig's seed 3 (A-pose, jump, a walk over stairs), made deterministically on
-# first use (about a minute; some 190 MB, too big for bags/), then reused.
+# first use (about a minute; some 280 MB, too big for bags/), then reused.
 HSC4D_DEMO := $(OUT)/hsc4d_demo_capture
 
 $(HSC4D_DEMO)/metadata.yaml: | $(INSTALLED)

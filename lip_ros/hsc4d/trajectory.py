@@ -183,6 +183,11 @@ class TrajectoryPipeline:
         return f"tracking; catching up with {len(self._held)} sweeps" if self._held else "tracking"
 
     @property
+    def backlog(self) -> int:
+        """Sweeps taken but not registered yet (held until the jump, or taken since while they were)."""
+        return len(self._held)
+
+    @property
     def waiting(self) -> int:
         """Sweeps taken but not output yet: held for the jump, or registered before the map frame was fixed."""
         return len(self._held) + len(self._pending)

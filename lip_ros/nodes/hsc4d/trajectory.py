@@ -13,9 +13,9 @@ pose, in the pelvis frame) and, where tf2_msgs is installed, ``map`` ->
 ``pelvis`` on /tf. Every ``map_period_s`` the local map around the wearer
 (kiss-icp's voxel map) goes out on ``/hsc4d/map`` (reliable, transient local).
 
-The sweeps held until the jump are registered a few with each new sweep (not
-in one long callback, during which the suit's samples would overflow their
-queues); a sweep waits (at most ``suit_wait_s`` after it arrived) until the
+The sweeps held until the jump are registered with each new sweep for at most
+half a LiDAR period (not in one long callback, during which the suit's samples
+would overflow their queues); a sweep waits (at most ``suit_wait_s`` after it arrived) until the
 suit's samples cover it, so that its deskew and initial guess have the suit's
 motion whatever order the transport delivers in. A sweep stamped more than a second
 before the last one (a bag started again, a clock jump) starts the trajectory
@@ -74,8 +74,9 @@ _MAX_TWIST_DT_S = 0.5  # the twist is left zero across a longer gap between outp
 #: wants the interpreter: up to about a second measured) at 10-20 Hz clouds and 100 Hz suit samples
 _CLOUD_INPUT = QoSProfile(depth=20, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability)
 _SUIT_INPUT = QoSProfile(depth=200, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability)
-#: sweeps registered per sweep taken: the new one, or the oldest held one and two more of the backlog
-_REGISTER_PER_SWEEP = 3
+#: with each sweep taken, the backlog (the sweeps held until the jump) is registered for at most this share of a
+#: LiDAR period (the oldest sweep first, the new one behind them): the rest of the period is the live sweep's
+_CATCH_UP_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -209,7 +210,11 @@ class TrajectoryNode(GraphNode):
             return
         self._last_ns = sweep.stamp_ns
         synced = self.pipeline.offset_ns is not None
-        steps = self.pipeline.add_sweep(sweep.points, sweep.point_ns, sweep.stamp_ns, max_register=_REGISTER_PER_SWEEP)
+        start = time.monotonic()
+        steps = self.pipeline.add_sweep(sweep.points, sweep.point_ns, sweep.stamp_ns, max_register=1)
+        budget = _CATCH_UP_SHARE / self.params["lidar_rate_hz"]
+        while self.pipeline.backlog and self.pipeline.offset_ns is not None and time.monotonic() - start < budget:
+            steps += self.pipeline.catch_up(1)
         if not synced and self.pipeline.offset_ns is not None:
             offset = int(self.pipeline.offset_ns)
             self._offset_pub.publish(Int64(data=offset))
