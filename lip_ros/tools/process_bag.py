@@ -68,6 +68,7 @@ __all__ = ["main", "ProcessSummary", "summarize_outputs", "Branch", "LIP", "HSC4
 MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their stamps are this close
 CALIBRATION_FRAMES = f"{CalibrationNode.NAME}: frames"  # ... with the DOT latencies
 OFFSET_VALUE = "suit clock offset (ms)"  # of the HSC4D trajectory node's frames status
+CATCH_UP_PREFIX = "catch_up_latency_ms_"  # ... its latency of the sweeps that waited behind the backlog
 
 
 @dataclass(frozen=True)
@@ -125,6 +126,7 @@ class ProcessSummary:
     rate: float = 1.0  # the player's speed factor
     hsc4d: Hsc4dAccuracy | None = None  # HSC4D: against the rig's truth
     offset_ms: str = ""  # HSC4D: the suit's clock offset the graph found
+    catch_up_ms: dict[str, float] = field(default_factory=dict)  # HSC4D: latency of sweeps behind the backlog
 
     def lines(self) -> list[str]:
         """Human-readable report."""
@@ -134,6 +136,9 @@ class ProcessSummary:
         if self.latency_ms:
             out.append(f"latency (cloud received -> {self.latency_of}): "
                        + ", ".join(f"{k} {v:.1f} ms" for k, v in self.latency_ms.items()))
+        if self.catch_up_ms:
+            out.append("latency of the sweeps that came while the ones held for the jump were registered: "
+                       + ", ".join(f"{k} {v:.1f} ms" for k, v in self.catch_up_ms.items()))
         if self.offset_ms:
             out.append(f"suit clock offset found from the jump: {self.offset_ms} ms")
         if self.hsc4d is not None:
@@ -178,6 +183,8 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP) -> Proc
     if branch is HSC4D:
         offset = next((v.get(OFFSET_VALUE) for v in last.values() if OFFSET_VALUE in v), "")
         summary.offset_ms = "" if offset in ("", "unknown") else offset
+        summary.catch_up_ms = {k.removeprefix(CATCH_UP_PREFIX): float(v)
+                               for k, v in last[branch.latency_status].items() if k.startswith(CATCH_UP_PREFIX)}
         summary.hsc4d = hsc4d_accuracy(inputs, outputs, round(float(offset) * 1e6) if summary.offset_ms else None)
         return summary
     if GT_TOPICS.joint_poses not in bag_topics(inputs):

@@ -77,6 +77,7 @@ _SUIT_INPUT = QoSProfile(depth=200, reliability=IMU_INPUT.reliability, durabilit
 #: with each sweep taken, the backlog (the sweeps held until the jump) is registered for at most this share of a
 #: LiDAR period (the oldest sweep first, the new one behind them): the rest of the period is the live sweep's
 _CATCH_UP_SHARE = 0.5
+_MAX_TRACKED = 1000  # sweeps whose receipt time is kept for the latency
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,10 @@ class TrajectoryNode(GraphNode):
         self._map_stamp_ns: int | None = None
         self._restarts = 0
         self._published = 0
-        self._latency = LatencyWindow()  # cloud received -> odometry published, sweeps output on arrival
+        self._latency = LatencyWindow()  # cloud received -> odometry published, sweeps with no backlog before them
+        self._catch_up_latency = LatencyWindow()  # ... sweeps after the sync that waited behind the backlog
+        #: sweep stamp -> (monotonic s it was received, whether it came behind a backlog), sweeps after the sync
+        self._received: dict[int, tuple[float, bool]] = {}
         self._odometry_pub = self.create_publisher(Odometry, p["odometry_topic"], RELIABLE)
         self._map_pub = self.create_publisher(PointCloud2, p["map_topic"], LATCHED)
         self._offset_pub = self.create_publisher(Int64, p["offset_topic"], LATCHED)
@@ -199,7 +203,7 @@ class TrajectoryNode(GraphNode):
             taken = True
         if not taken and now - self._last_received >= self.params["suit_wait_s"]:  # no sweeps coming in
             for step in self.pipeline.catch_up(1):
-                self._publish(step, None)
+                self._publish(step, self._received.pop(step.sweep_ns, None))
 
     def _take(self, sweep: _Sweep) -> None:
         """Give one sweep to the pipeline and publish what comes out."""
@@ -210,6 +214,10 @@ class TrajectoryNode(GraphNode):
             return
         self._last_ns = sweep.stamp_ns
         synced = self.pipeline.offset_ns is not None
+        if synced:  # its latency is measured (those held for the jump wait for it by design)
+            self._received[sweep.stamp_ns] = (sweep.received, self.pipeline.backlog > 0)
+            while len(self._received) > _MAX_TRACKED:  # dropped from the backlog, never output
+                del self._received[next(iter(self._received))]
         start = time.monotonic()
         steps = self.pipeline.add_sweep(sweep.points, sweep.point_ns, sweep.stamp_ns, max_register=1)
         budget = _CATCH_UP_SHARE / self.params["lidar_rate_hz"]
@@ -224,7 +232,7 @@ class TrajectoryNode(GraphNode):
             self.count_frame("skipped: held too long (no jump or map frame)")
         self._dropped = dropped
         for step in steps:
-            self._publish(step, sweep.received if step.sweep_ns == sweep.stamp_ns else None)
+            self._publish(step, self._received.pop(step.sweep_ns, None))
 
     def _restart(self, stamp_ns: int) -> None:
         """The clock went back: a new trajectory (the sweeps waiting in the old one are counted as skipped)."""
@@ -237,8 +245,9 @@ class TrajectoryNode(GraphNode):
         self._last_ns, self._last_step, self._dropped = None, None, 0
         self._restarts += 1
 
-    def _publish(self, step: TrajectoryStep, received: float | None) -> None:
-        """The fused pose of one sweep: odometry, /tf; its latency if its cloud arrived just now."""
+    def _publish(self, step: TrajectoryStep, received: tuple[float, bool] | None) -> None:
+        """The fused pose of one sweep: odometry, /tf; its latency from ``received`` (its cloud's receipt and
+        whether it waited behind the backlog; None for a sweep held for the jump)."""
         p = self.params
         R, position = step.pelvis[:3, :3], step.pelvis[:3, 3]
         quat = matrix_to_quat(R)
@@ -256,7 +265,7 @@ class TrajectoryNode(GraphNode):
                 self.backend, step.stamp_ns, p["frame_id"], p["child_frame_id"], position, quat)]))
         self._published += 1
         if received is not None:
-            self._latency.add(time.monotonic() - received)
+            (self._catch_up_latency if received[1] else self._latency).add(time.monotonic() - received[0])
 
     def _publish_map(self) -> None:
         last = self._last_step
@@ -284,6 +293,7 @@ class TrajectoryNode(GraphNode):
             "pending": pipe.waiting + len(self._waiting),
             **{k: v for k, v in sorted(pipe.counts.items()) if k not in _DROPPED},
             **self._latency.values("latency_ms"),
+            **self._catch_up_latency.values("catch_up_latency_ms"),
         }
         return level, pipe.status, values
 
