@@ -97,8 +97,8 @@ def hsc4d_accuracy(inputs: Path, outputs: Path, offset_ns: int | None) -> Hsc4dA
     ground = Terrain.random(int(rig["config"]["seed"])).surface_height(true_pelvis[:, :2])
     off_level = np.abs(ground - ground[0]) > LEVEL_M
     dz = aligned[:, 2] - true_pelvis[:, 2]
-    joints = {msg_to_pose_array(m.msg).stamp_ns: msg_to_pose_array(m.msg).positions
-              for m in read_messages(outputs, [HSC4D_TOPICS.joint_poses])}
+    joints = {p.stamp_ns: p.positions
+              for p in (msg_to_pose_array(m.msg) for m in read_messages(outputs, [HSC4D_TOPICS.joint_poses]))}
     have = [k for k, s in enumerate(stamps) if int(s) in joints]
     mpjpe = float("nan")
     if have:

@@ -95,7 +95,6 @@ HSC4D = Branch("hsc4d", HIP_LIDAR_TOPIC,
                (ODOMETRY_TOPIC, HSC4D_TOPICS.joint_states, HSC4D_TOPICS.root_pose, HSC4D_TOPICS.joint_poses,
                 MAP_TOPIC, "/diagnostics"), HSC4D_TOPICS.root_pose, "hsc4d_trajectory_node: frames", "latency_ms_",
                f"{ODOMETRY_TOPIC} published", ("-p", "branch:=hsc4d"))
-POSE_FRAMES = LIP.latency_status  # the LIP diagnostic status with the poses and the graph's latency
 
 
 def branch_of_bag(bag: Path) -> Branch:

@@ -166,10 +166,14 @@ class BodyNode(GraphNode):
                                                               f"{self.params['offset_topic']}")
             return
         if self._scale_from_height:
-            scale = self.body.scale_to_pelvis_height(float(T_map_P[2, 3]))
             self._scale_from_height = False
-            self.get_logger().info(f"body scaled to the standing pelvis height {T_map_P[2, 3]:.3f} m: "
-                                   f"{scale:.3f} x the contract skeleton")
+            try:
+                scale = self.body.scale_to_pelvis_height(float(T_map_P[2, 3]))
+            except ValueError as exc:
+                self.get_logger().warning(f"body left at the contract's size: {exc}")
+            else:
+                self.get_logger().info(f"body scaled to the standing pelvis height {T_map_P[2, 3]:.3f} m: "
+                                       f"{scale:.3f} x the contract skeleton")
         self._decode()
         pose, reason = self.body.pose(stamp_ns + self._offset_ns, T_map_P)
         if pose is None:

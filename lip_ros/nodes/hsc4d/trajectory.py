@@ -25,7 +25,7 @@ over; a sweep not after the last one otherwise is skipped.
 from __future__ import annotations
 
 import time
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -67,7 +67,10 @@ from lip_ros.nodes.hsc4d import HSC4D_PARAMS_FILE
 
 __all__ = ["TrajectoryNode", "main"]
 
-_DROPPED = ("sweeps dropped waiting for the jump", "sweeps dropped waiting for the map frame")
+#: the pipeline's counts of sweeps it dropped -> how this node accounts for those frames
+_DROPPED = {"sweeps dropped waiting for the jump": "skipped: held too long (no jump)",
+            "sweeps dropped waiting for the map frame": "skipped: held too long (no map frame)",
+            "sweeps dropped: registration fell behind": "skipped: registration fell behind"}
 _RESTART_NS = 1_000_000_000  # a sweep this far before the last one starts the trajectory over
 _MAX_TWIST_DT_S = 0.5  # the twist is left zero across a longer gap between outputs
 #: SensorDataQoS, deep enough for the longest callback (registering a few sweeps while the rest of the process also
@@ -127,7 +130,7 @@ class TrajectoryNode(GraphNode):
         self.pipeline = TrajectoryPipeline(self._config)
         self._waiting: deque[_Sweep] = deque()
         self._suit_ns = {"imu": None, "odometry": None}  # newest accepted suit stamps
-        self._dropped = 0  # of the pipeline's drops, already counted as frames
+        self._dropped: Counter[str] = Counter()  # of the pipeline's drops, those already counted as frames
         self._last_ns: int | None = None  # of the last sweep taken
         self._last_received = 0.0  # monotonic s of the last cloud
         self._last_step: TrajectoryStep | None = None
@@ -227,10 +230,10 @@ class TrajectoryNode(GraphNode):
             offset = int(self.pipeline.offset_ns)
             self._offset_pub.publish(Int64(data=offset))
             self.get_logger().info(f"jump seen: the suit's clock is {offset * 1e-6:+.1f} ms from the LiDAR's")
-        dropped = sum(self.pipeline.counts[k] for k in _DROPPED)
-        for _ in range(dropped - self._dropped):
-            self.count_frame("skipped: held too long (no jump or map frame)")
-        self._dropped = dropped
+        for key, what in _DROPPED.items():
+            for _ in range(self.pipeline.counts[key] - self._dropped[key]):
+                self.count_frame(what)
+            self._dropped[key] = self.pipeline.counts[key]
         for step in steps:
             self._publish(step, self._received.pop(step.sweep_ns, None))
 
@@ -242,7 +245,7 @@ class TrajectoryNode(GraphNode):
                                   "the clock jumped back; starting over, waiting for a jump")
         self.pipeline = TrajectoryPipeline(self._config)
         self._suit_ns = {"imu": None, "odometry": None}
-        self._last_ns, self._last_step, self._dropped = None, None, 0
+        self._last_ns, self._last_step, self._dropped = None, None, Counter()
         self._restarts += 1
 
     def _publish(self, step: TrajectoryStep, received: tuple[float, bool] | None) -> None:
