@@ -116,7 +116,6 @@ def hsc4d_accuracy(inputs: Path, outputs: Path, offset_ns: int | None) -> Hsc4dA
         suit_err = np.linalg.norm(suit_aligned - true_pelvis, axis=1)
         out.suit_ate_m, out.suit_final_m = float(np.sqrt(np.mean(suit_err ** 2))), float(suit_err[-1])
         out.series["suit"] = suit_aligned
-    out.series["T"] = T
     return out
 
 
