@@ -11,9 +11,11 @@ it); :mod:`~lip_ros.hsc4d.map_frame`; :mod:`~lip_ros.hsc4d.mount` (the nominal
 mounting and its estimate); :mod:`~lip_ros.hsc4d.pose_graph` (gtsam, the one
 module that imports it). :mod:`~lip_ros.hsc4d.suit_body` poses the suit's
 segments on the fused pelvis; :mod:`~lip_ros.hsc4d.sensors` names the topics.
-:mod:`~lip_ros.hsc4d.evaluation` measures the trajectory on rig captures
-against the paper's baselines. To come: the scene-aware optimisation (foot
-contact, sliding, smoothness) and the offline map. Like :mod:`lip_ros.lip`
+:mod:`~lip_ros.hsc4d.scene_optimisation` (torch, the one module that imports
+it) moves the fused body onto the scene window by window (foot contact,
+sliding, orientation, smoothness). :mod:`~lip_ros.hsc4d.evaluation` measures
+trajectory and body on rig captures against the paper's baselines. To come:
+the optimisation in the nodes and the offline map. Like :mod:`lip_ros.lip`
 it uses :mod:`lip_ros.core` and never imports the other branch; its nodes go in
 :mod:`lip_ros.nodes.hsc4d`.
 """

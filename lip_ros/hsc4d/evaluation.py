@@ -15,6 +15,19 @@ fitted only on the ``fit_s`` seconds after the jump's landing and kept fixed
 (drift is not forgiven), then reports the pelvis ATE (RMSE), the vertical
 error where the ground under the wearer is not at the start's level (stairs,
 ramps, the terrace) and the error at the end.
+
+The body: the suit's joints (:class:`~lip_ros.hsc4d.suit_body.SuitBody`) on each
+method's pelvis, scaled to the first fused pelvis height as the body node does.
+The **live optimised** trajectory is the live one after the scene-aware
+optimisation (:mod:`~lip_ros.hsc4d.scene_optimisation`) window by window, each
+on the LiDAR map as it stood when the window's last sweep came out; the
+**refined graph** is the whole capture's graph solved at once, and the
+**refined** trajectory is that graph optimised on the final map, also with each
+loss term left out in turn (the ablation). :func:`body_metrics`
+reports, against the truth and under the same alignment, the checkpoint error
+(the foot joint at the middle of each true stance), the foot contact error (a
+standing foot's height above the true surface under it against the truth's),
+foot sliding per frame and the root-relative MPJPE.
 """
 
 from __future__ import annotations
@@ -25,47 +38,96 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lip_ros.core.metrics import align_yaw_translation
+from lip_ros.core.metrics import align_yaw_translation, mpjpe
+from lip_ros.core.rotations import quat_to_matrix
+from lip_ros.core.skeleton import load_skeleton
+from lip_ros.hsc4d.scene_optimisation import TERMS, SceneOptimisationConfig, optimise_sequence, without
+from lip_ros.hsc4d.suit_body import SuitBody, SuitBodyConfig
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline
 from lip_ros.rig.site_capture import SiteCapture
+from lip_ros.rig.terrain import Terrain
 
-__all__ = ["METHODS", "TrajectoryRun", "run_capture", "aligned", "trajectory_metrics"]
+__all__ = ["METHODS", "ABLATIONS", "TrajectoryRun", "run_capture", "aligned", "trajectory_metrics",
+           "body_metrics"]
 
 #: the trajectories compared, in report order
-METHODS = ("baseline1_suit", "baseline2_lidar", "live", "refined")
+METHODS = ("baseline1_suit", "baseline2_lidar", "live", "live_optimised", "refined_graph", "refined")
+#: the refinement with one loss term left out, per term
+ABLATIONS = tuple(f"refined_without_{term}" for term in TERMS)
+_FEET = ("left_foot", "right_foot")
 
 
 @dataclass(frozen=True)
 class TrajectoryRun:
     """One capture's trajectories at the output sweeps' reference times ``t_s`` (s since the capture began):
-    pelvis positions (N, 3) per method and of the truth, the true ground height under the true pelvis (N,), the
-    jump's landing (s), the suit clock offset found and the true one (ns), which registrations were not
-    believed (N,), the time each sweep took in ``add_sweep`` (ms; the sweeps held until the jump are
-    registered together in the call that finds it, each counted at that call's time over their number) and the
-    pipeline's counters."""
+    pelvis positions (N, 3) and joints (N, 24, 3) per method (:data:`METHODS`, :data:`ABLATIONS`) and of the
+    truth, the true ground height under the true pelvis (N,), which foot truly stands (N, 2), the jump's landing
+    (s), the suit clock offset found and the true one (ns), which registrations were not believed (N,), the time
+    each sweep took in ``add_sweep`` (ms; the sweeps held until the jump are registered together in the call that
+    finds it, each counted at that call's time over their number), the optimisation's time per window (s), the
+    sole height it measured (m) and the pipeline's counters."""
 
     seed: int
     t_s: np.ndarray
     positions: dict[str, np.ndarray]
+    joints: dict[str, np.ndarray]
     truth: np.ndarray
+    true_joints: np.ndarray
     ground: np.ndarray
+    true_stance: np.ndarray
     landing_s: float
     offset_ns: int
     true_offset_ns: int
     rejected: np.ndarray
     sweep_ms: np.ndarray
+    window_s: np.ndarray
+    sole_m: float
     counts: dict[str, int]
 
 
+def _suit_pelvis(capture: SiteCapture, suit_ns: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) the suit's own pelvis pose (its ``/mocap/odometry``, nearest sample) at suit-clock times."""
+    odometry = capture.suit_odometry()
+    k = np.clip(np.searchsorted(odometry.stamp_ns, suit_ns), 0, len(odometry.stamp_ns) - 1)
+    out = np.tile(np.eye(4), (len(suit_ns), 1, 1))
+    out[:, :3, :3], out[:, :3, 3] = quat_to_matrix(odometry.quat[k]), odometry.position[k]
+    return out
+
+
+def _bodies(capture: SiteCapture, suit_ns: np.ndarray, poses: dict[str, np.ndarray], height_m: float
+            ) -> dict[str, np.ndarray]:
+    """Joints (N, 24, 3) per method: the suit's segments on each method's pelvis poses (N, 4, 4), the skeleton
+    scaled to ``height_m``."""
+    streams = capture.suit_streams()
+    body = SuitBody(load_skeleton(), SuitBodyConfig(capacity=max(len(s.stamp_ns) for s in streams.values()) + 1))
+    for name, stream in streams.items():
+        body.add(name, list(stream.samples(f"mocap_{name}")))
+    body.scale_to_pelvis_height(height_m)
+    out = {}
+    for name, T in poses.items():
+        joints = []
+        for k, ns in enumerate(suit_ns):
+            pose, why = body.pose(int(ns), T[k])
+            if pose is None:
+                raise RuntimeError(f"no suit pose at {ns} ns: {why}")
+            joints.append(pose.joints)
+        out[name] = np.array(joints)
+    return out
+
+
 def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
-                progress: Callable[[int, int], None] | None = None) -> TrajectoryRun:
-    """Play ``capture`` through a :class:`TrajectoryPipeline` (``progress(k, n)`` after each sweep)."""
+                progress: Callable[[int, int], None] | None = None,
+                scene: SceneOptimisationConfig | None = None) -> TrajectoryRun:
+    """Play ``capture`` through a :class:`TrajectoryPipeline` (``progress(k, n)`` after each sweep), pose the
+    body on each method's trajectory and optimise the live and the refined ones with ``scene``."""
+    scene = scene or SceneOptimisationConfig()
     pipeline = TrajectoryPipeline(config)
     pelvis = list(capture.suit_streams()["pelvis"].samples("mocap_pelvis"))
     odometry = capture.suit_odometry()
     true_offset = int(round(capture.suit.clock_offset_s * 1e9))
     imu_next = odo_next = 0
     steps, sweep_ms = [], []
+    maps: list[tuple[int, np.ndarray]] = []  # (the newest step's index, the live map then), once per window
     n = capture.num_frames
     for k, frame in capture.frames():
         arrival = capture.frame_stamp_ns(k) + capture.lidar.period_ns + true_offset  # on the suit's clock
@@ -83,31 +145,57 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
         ms = 1e3 * (time.perf_counter() - t0)
         steps += out
         sweep_ms += [ms / max(len(out), 1)] * len(out)  # the held sweeps share the call that registers them
+        if steps and len(steps) // scene.window > len(maps):
+            maps.append((len(steps) - 1, pipeline.map_points()))
         if progress is not None:
             progress(k, n)
     if pipeline.offset_ns is None or not steps:
         raise RuntimeError(f"capture {capture.config.seed}: no trajectory ({pipeline.status})")
+    maps.append((len(steps) - 1, pipeline.map_points()))
     stamps = np.array([s.stamp_ns for s in steps], dtype=np.int64)
     t_s = (stamps - capture.epoch_ns) * 1e-9
     truth = capture.truth(t_s)
     refined_ns, refined = pipeline.refine()
     if not np.array_equal(refined_ns, stamps):
         raise RuntimeError("the refinement's sweeps are not the live ones (record_s too short for the capture?)")
+    suit_ns = stamps + pipeline.offset_ns
     T_L_M = pipeline.T_L_M
-    suit_t = (stamps + pipeline.offset_ns).astype(np.float64)
-    suit = np.column_stack([np.interp(suit_t, odometry.stamp_ns.astype(np.float64), odometry.position[:, i])
-                            for i in range(3)])
-    positions = {
-        "baseline1_suit": suit,
-        "baseline2_lidar": np.array([(s.lidar @ T_L_M)[:3, 3] for s in steps]),
-        "live": np.array([s.pelvis[:3, 3] for s in steps]),
-        "refined": refined[:, :3, 3],
+    poses = {
+        "baseline1_suit": _suit_pelvis(capture, suit_ns),
+        "baseline2_lidar": np.array([s.lidar @ T_L_M for s in steps]),
+        "live": np.array([s.pelvis for s in steps]),
+        "refined_graph": refined,
     }
+    joints = _bodies(capture, suit_ns, poses, float(steps[0].pelvis[2, 3]))
+    feet = [load_skeleton().index(f) for f in _FEET]
+
+    def live_map(k: int) -> np.ndarray:
+        return next(points for last, points in maps if last >= k)
+
+    def optimised(name: str, map_at: Callable[[int], np.ndarray], config: SceneOptimisationConfig,
+                  sole_m: float | None) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+        """Method ``name`` optimised: its poses, joints, the sole height and the time per window (s)."""
+        t0 = time.perf_counter()
+        suit = "baseline1_suit"
+        result = optimise_sequence(t_s, poses[name], joints[name][:, feet], poses[suit][:, :3, 3],
+                                   joints[suit][:, feet], map_at, config, sole_m)
+        window_s = np.full(len(result.windows), (time.perf_counter() - t0) / len(result.windows))
+        start = poses[name][:, :3, 3]
+        turn = result.pelvis[:, :3, :3] @ np.swapaxes(poses[name][:, :3, :3], 1, 2)
+        body = result.pelvis[:, None, :3, 3] + np.einsum("nab,njb->nja", turn, joints[name] - start[:, None])
+        return result.pelvis, body, result.sole_m, window_s
+
+    poses["live_optimised"], joints["live_optimised"], sole, window_s = optimised("live", live_map, scene, None)
+    final_map = maps[-1][1]
+    poses["refined"], joints["refined"], _, _ = optimised("refined_graph", lambda k: final_map, scene, sole)
+    for term, name in zip(TERMS, ABLATIONS, strict=True):
+        poses[name], joints[name], _, _ = optimised("refined_graph", lambda k: final_map, without(scene, term), sole)
     jump = next(end for name, _, end in capture.phases_ns() if name == "jump")
-    return TrajectoryRun(capture.config.seed, t_s, positions, truth.pelvis,
-                         capture.terrain.surface_height(truth.pelvis[:, :2]), (jump - capture.epoch_ns) * 1e-9,
-                         int(pipeline.offset_ns), true_offset, np.array([bool(s.rejected) for s in steps]),
-                         np.array(sweep_ms), dict(pipeline.counts))
+    return TrajectoryRun(capture.config.seed, t_s, {k: v[:, :3, 3] for k, v in poses.items()}, joints,
+                         truth.pelvis, truth.joints, capture.terrain.surface_height(truth.pelvis[:, :2]),
+                         truth.contacts.stance, (jump - capture.epoch_ns) * 1e-9, int(pipeline.offset_ns),
+                         true_offset, np.array([bool(s.rejected) for s in steps]), np.array(sweep_ms), window_s,
+                         sole, dict(pipeline.counts))
 
 
 def _fit_window(run: TrajectoryRun, fit_s: float) -> np.ndarray:
@@ -118,22 +206,28 @@ def _fit_window(run: TrajectoryRun, fit_s: float) -> np.ndarray:
     return fit
 
 
+def _alignment(run: TrajectoryRun, name: str, fit_s: float) -> np.ndarray:
+    """T (4, 4): method ``name``'s pelvis turned about z and shifted onto the truth by the fit over the ``fit_s`` s
+    after the landing."""
+    return align_yaw_translation(run.positions[name], run.truth, _fit_window(run, fit_s))
+
+
 def aligned(run: TrajectoryRun, name: str, fit_s: float = 5.0) -> np.ndarray:
     """(N, 3) method ``name``'s pelvis positions turned about z and shifted onto the truth by the fit over the
     ``fit_s`` s after the landing, kept for the whole capture."""
-    T = align_yaw_translation(run.positions[name], run.truth, _fit_window(run, fit_s))
+    T = _alignment(run, name, fit_s)
     return run.positions[name] @ T[:3, :3].T + T[:3, 3]
 
 
 def trajectory_metrics(run: TrajectoryRun, fit_s: float = 5.0, level_m: float = 0.05) -> dict[str, dict[str, float]]:
-    """Per method (:data:`METHODS`): ``ate_m`` (pelvis RMSE after the yaw + translation alignment fitted on the
-    ``fit_s`` s after the landing), ``vertical_m`` (RMS height error where the true ground is more than
-    ``level_m`` off the start's level: stairs, ramps, the terrace), ``final_m`` (error at the end), and the
-    alignment's own residual ``fit_m`` (RMSE over the fitted seconds)."""
+    """Per method (:data:`METHODS`, :data:`ABLATIONS`): ``ate_m`` (pelvis RMSE after the yaw + translation
+    alignment fitted on the ``fit_s`` s after the landing), ``vertical_m`` (RMS height error where the true
+    ground is more than ``level_m`` off the start's level: stairs, ramps, the terrace), ``final_m`` (error at the
+    end), and the alignment's own residual ``fit_m`` (RMSE over the fitted seconds)."""
     fit = _fit_window(run, fit_s)
     off_level = np.abs(run.ground - run.ground[0]) > level_m
     out = {}
-    for name in METHODS:
+    for name in run.positions:
         p = aligned(run, name, fit_s)
         err = np.linalg.norm(p - run.truth, axis=1)
         dz = p[:, 2] - run.truth[:, 2]
@@ -142,5 +236,39 @@ def trajectory_metrics(run: TrajectoryRun, fit_s: float = 5.0, level_m: float = 
             "vertical_m": float(np.sqrt(np.mean(dz[off_level] ** 2))) if off_level.any() else float("nan"),
             "final_m": float(err[-1]),
             "fit_m": float(np.sqrt(np.mean(err[fit] ** 2))),
+        }
+    return out
+
+
+def body_metrics(run: TrajectoryRun, terrain: Terrain, fit_s: float = 5.0) -> dict[str, dict[str, float]]:
+    """Per method, and ``truth`` for the sliding the true motion has itself, after the landing and under the
+    pelvis's alignment: ``checkpoint_m`` (the foot joint against the true one at the middle of each true
+    stance), ``contact_m`` (mean absolute difference of a truly standing foot joint's height above the true
+    surface under it from the truth's), ``sliding_m`` (mean motion of a truly standing foot joint from one frame
+    to the next, while it stands in both) and ``mpjpe_mm`` (root-relative)."""
+    feet = [load_skeleton().index(f) for f in _FEET]
+    after = run.t_s >= run.landing_s
+    stance = run.true_stance & after[:, None]
+    checkpoints = []
+    for foot in range(2):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], stance[:, foot].astype(np.int8), [0]])))
+        checkpoints += [((start + stop - 1) // 2, foot) for start, stop in zip(edges[::2], edges[1::2], strict=True)]
+    rows, cols = np.array(checkpoints).T if checkpoints else (np.zeros(0, int), np.zeros(0, int))
+    true_feet = run.true_joints[:, feet]
+
+    def height(f: np.ndarray) -> np.ndarray:
+        return f[..., 2] - terrain.surface_height(f[..., :2].reshape(-1, 2)).reshape(f.shape[:-1])
+
+    both = stance[1:] & stance[:-1]
+    out = {"truth": {"sliding_m": float(np.linalg.norm(np.diff(true_feet, axis=0)[both], axis=-1).mean())}}
+    for name in run.joints:
+        T = _alignment(run, name, fit_s)
+        joints = run.joints[name] @ T[:3, :3].T + T[:3, 3]
+        f = joints[:, feet]
+        out[name] = {
+            "checkpoint_m": float(np.linalg.norm(f[rows, cols] - true_feet[rows, cols], axis=-1).mean()),
+            "contact_m": float(np.abs(height(f) - height(true_feet))[stance].mean()),
+            "sliding_m": float(np.linalg.norm(np.diff(f, axis=0)[both], axis=-1).mean()),
+            "mpjpe_mm": 1000.0 * float(mpjpe(joints[after], run.true_joints[after]).mean()),
         }
     return out

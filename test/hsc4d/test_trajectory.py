@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lip_ros.core.rotations import rot_x
-from lip_ros.hsc4d.evaluation import run_capture, trajectory_metrics
+from lip_ros.hsc4d.evaluation import ABLATIONS, METHODS, body_metrics, run_capture, trajectory_metrics
 from lip_ros.hsc4d.jump_sync import JumpSync
 from lip_ros.hsc4d.lidar_odometry import LidarOdometry, WearerFilter
 from lip_ros.hsc4d.map_frame import estimate_map_frame
@@ -89,7 +89,10 @@ def test_the_map_frame_stands_on_the_ground_under_the_first_pelvis_position():
 def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than_the_suit():
     """A 24 s capture at 512 columns played in arrival order: the pipeline holds the sweeps until the jump, finds
     the suit's clock within 10 ms, and its live and refined pelvis trajectories stay within 10 cm of the truth
-    (ATE after the yaw + translation fit on the 5 s after the landing), while the suit alone drifts farther."""
+    (ATE after the yaw + translation fit on the 5 s after the landing), while the suit alone drifts farther. The
+    body on them, optimised with the scene: checkpoints within 10 cm, foot contact within 5 cm, MPJPE under
+    20 mm, sliding no worse than the suit's own (the issue's targets are 10 cm, 3 cm, 20 mm and 1 cm a frame
+    over held-out 90 s walks, measured by hsc4d_eval; this short one at 512 columns is looser)."""
     capture = SiteCapture(SiteCaptureConfig(seed=0, seconds=24.0, columns=512))
     run = run_capture(capture)
     assert abs(run.offset_ns - run.true_offset_ns) < 10_000_000
@@ -98,6 +101,13 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
     assert metrics["live"]["ate_m"] < 0.1 and metrics["refined"]["ate_m"] < 0.1
     assert metrics["baseline1_suit"]["ate_m"] > 2.0 * metrics["live"]["ate_m"]
     assert np.isfinite([v for m in metrics.values() for v in m.values() if not np.isnan(v)]).all()
+    body = body_metrics(run, capture.terrain)
+    assert set(body) == set(METHODS + ABLATIONS) | {"truth"}
+    for name in ("live_optimised", "refined"):
+        assert body[name]["checkpoint_m"] < 0.1 and body[name]["contact_m"] < 0.05 and body[name]["mpjpe_mm"] < 20
+        assert body[name]["sliding_m"] <= body["baseline1_suit"]["sliding_m"]
+    assert body["baseline1_suit"]["contact_m"] > 2.0 * body["refined"]["contact_m"]
+    assert 0.0 < run.sole_m < 0.1 and len(run.window_s) >= 2
 
 
 def test_without_a_jump_the_pipeline_holds_a_bounded_number_of_sweeps_and_says_why():

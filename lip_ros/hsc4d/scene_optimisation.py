@@ -1,0 +1,275 @@
+"""Scene-aware joint optimisation of the fused body over windows of frames (the paper's section 4.5; the one HSC4D
+module that imports torch), ROS-free.
+
+Given per frame the fused pelvis pose (translation ``t0``, rotation ``R0``), each foot joint's offset from the
+pelvis in ``map`` as the suit's joint rotations put it, which foot stands (from the suit's own foot motion,
+:func:`stance_from_suit`) and the LiDAR map's points, :func:`optimise_window` moves the pelvis translation and
+turns the whole body about the pelvis (a small rotation per frame) to minimise
+
+* **contact**: each standing foot's distance above the ground plane under it, less the sole's height (the
+  ground: a plane fitted by RANSAC to the map's points within ``radius_m`` of the foot, per stance, since the
+  point cloud has holes; the foot joint stands ``sole_m`` above its sole, measured on the still start);
+* **sliding**: a standing foot's motion from one frame to the next, while it stands in both;
+* **orientation**: the body's turn away from the fused rotation (the landmarks; the suit's rotation) and its
+  change from frame to frame (as smooth as the suit's);
+* **smoothness**: the pelvis's step from frame to frame against the suit's (the paper's: move as smoothly as the
+  suit; the suit's steps scaled by the window's path over theirs, since its stride scale is off by a few per cent);
+* **prior**: the translation's distance from the fused one (the landmarks' hold on the window).
+
+Each term is a mean over the window, weighted (:class:`SceneOptimisationConfig`); a weight of zero drops the term
+(the ablation). The suit's joint rotations are kept as they are (the pose prior, held fixed: the limbs' pose comes
+from 17 sensors and the scene has nothing to say about it beyond the feet, which these terms already place).
+L-BFGS in double precision solves a window of 100 frames in well under a second.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from lip_ros.core.ground_plane import fit_ground_plane
+
+__all__ = ["SceneOptimisationConfig", "WindowInput", "WindowResult", "TERMS", "stance_from_suit",
+           "fit_foot_planes", "optimise_window", "without", "SequenceResult", "sole_height", "optimise_sequence"]
+
+#: the loss terms, in report order
+TERMS = ("contact", "sliding", "orientation", "smoothness", "prior")
+
+
+@dataclass(frozen=True)
+class SceneOptimisationConfig:
+    """Window length, the ground search round each foot and the terms' weights (the paper's l = 100, r = 0.6 m)."""
+
+    window: int = 100  # frames per optimisation window
+    radius_m: float = 0.6  # map points within this horizontal distance of a standing foot give its ground plane
+    above_m: float = 0.3  # ... from this far above the foot joint
+    below_m: float = 0.5  # ... to this far below it
+    plane_tolerance_m: float = 0.03  # RANSAC inlier distance
+    plane_max_tilt_deg: float = 20.0  # steeper is not ground (ramps are up to 12 deg)
+    plane_min_points: int = 8
+    stance_speed_mps: float = 0.4  # a foot slower (and slower than the other) stands: 2 cm a frame at 20 Hz
+    contact_huber_m: float = 0.02  # the contact residual is quadratic below this, linear above (a wrong plane)
+    contact: float = 3.0  # weights: per m^2 of the mean squared (Huber) residual ...
+    sliding: float = 3.0  # ... per m^2 of a standing foot's step
+    orientation: float = 1.0  # ... per rad^2 of the turn away from the fused rotation and of its change
+    smoothness: float = 1.0  # ... per m^2 of a frame's step length off the suit's
+    prior: float = 1.0  # ... per m^2 of the translation's distance from the fused one
+    iterations: int = 60  # L-BFGS iterations per window
+
+    def __post_init__(self) -> None:
+        if not (self.window >= 3 and self.radius_m > 0.0 and self.above_m >= 0.0 and self.below_m > 0.0
+                and self.plane_tolerance_m > 0.0 and 0.0 < self.plane_max_tilt_deg < 90.0
+                and self.plane_min_points >= 3 and self.stance_speed_mps > 0.0 and self.contact_huber_m > 0.0
+                and all(getattr(self, t) >= 0.0 for t in TERMS) and self.iterations > 0):
+            raise ValueError(f"invalid {self}")
+
+
+def without(config: SceneOptimisationConfig, term: str) -> SceneOptimisationConfig:
+    """``config`` with the weight of ``term`` (one of :data:`TERMS`) set to zero."""
+    if term not in TERMS:
+        raise ValueError(f"unknown term {term!r}; one of {TERMS}")
+    return replace(config, **{term: 0.0})
+
+
+@dataclass(frozen=True)
+class WindowInput:
+    """One window of N frames: the fused pelvis translations ``t0`` (N, 3) and rotations ``R0`` (N, 3, 3) in
+    ``map``, the foot joints' offsets from the pelvis (N, 2, 3) in ``map`` (left, right), which foot stands (N, 2)
+    and the ground plane under it (N, 2, 4: unit normal and offset, ``n . p + d = 0``; NaN where none), the suit's
+    pelvis step length into each frame (N,; the first is used only with ``before``); ``before``:
+    the previous window's last frame as optimised (its translation (3,) and feet (2, 3)), or None."""
+
+    t0: np.ndarray
+    R0: np.ndarray
+    offsets: np.ndarray
+    stance: np.ndarray
+    planes: np.ndarray
+    suit_steps: np.ndarray
+    before: tuple[np.ndarray, np.ndarray] | None = None
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """The optimised pelvis translations (N, 3) and rotations (N, 3, 3), the feet (N, 2, 3), and each term's value
+    before and after (unweighted)."""
+
+    t: np.ndarray
+    R: np.ndarray
+    feet: np.ndarray
+    before: dict[str, float]
+    after: dict[str, float]
+
+
+def stance_from_suit(feet: np.ndarray, t_s: np.ndarray, speed_mps: float) -> np.ndarray:
+    """(N, 2) bool, which foot stands at each of N frames: the slower of the two, if slower than ``speed_mps``,
+    from the feet (N, 2, 3) as the suit alone places them (its own odometry and joints, where a standing foot is
+    still) at times ``t_s`` (N,); central differences."""
+    n = len(t_s)
+    out = np.zeros((n, 2), dtype=bool)
+    if n < 2:
+        return out
+    speed = np.linalg.norm(np.gradient(feet, t_s, axis=0), axis=2)  # (N, 2)
+    slower = np.argmin(speed, axis=1)
+    rows = np.arange(n)
+    out[rows, slower] = speed[rows, slower] < speed_mps
+    return out
+
+
+def fit_foot_planes(feet: np.ndarray, stance: np.ndarray, points: np.ndarray, rng: np.random.Generator,
+                    config: SceneOptimisationConfig) -> np.ndarray:
+    """(N, 2, 4) the ground plane under each standing foot (NaN where none is found or the foot does not stand):
+    one plane per stance (a run of frames the same foot stands), fitted to the map's ``points`` (M, 3) within
+    ``radius_m`` of the stance's median foot position, from ``above_m`` over it to ``below_m`` under it."""
+    c = config
+    out = np.full(stance.shape + (4,), np.nan)
+    for foot in range(2):
+        runs = np.flatnonzero(np.diff(np.concatenate([[0], stance[:, foot].astype(np.int8), [0]])))
+        for start, stop in zip(runs[::2], runs[1::2], strict=True):
+            centre = np.median(feet[start:stop, foot], axis=0)
+            near = points[np.hypot(points[:, 0] - centre[0], points[:, 1] - centre[1]) <= c.radius_m]
+            local = near - (centre + [0.0, 0.0, c.above_m])  # the plane search wants the ground below the origin
+            local = local[local[:, 2] >= -(c.above_m + c.below_m)]
+            plane = fit_ground_plane(local, c.plane_tolerance_m, c.plane_max_tilt_deg, c.plane_min_points, rng)
+            if plane is not None:
+                origin = centre + [0.0, 0.0, c.above_m]
+                out[start:stop, foot] = [*plane.normal, plane.offset - plane.normal @ origin]
+    return out
+
+
+def _rodrigues(v: torch.Tensor) -> torch.Tensor:
+    """(N, 3, 3) rotation matrices of axis-angle vectors (N, 3), differentiable at zero."""
+    theta2 = (v * v).sum(-1, keepdim=True)[..., None]
+    theta = torch.sqrt(theta2 + 1e-24)
+    zero = torch.zeros_like(v[:, 0])
+    K = torch.stack([zero, -v[:, 2], v[:, 1], v[:, 2], zero, -v[:, 0], -v[:, 1], v[:, 0], zero], -1).view(-1, 3, 3)
+    small = theta2 < 1e-12
+    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)
+    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / (theta2 + 1e-24))
+    return torch.eye(3, dtype=v.dtype) + a * K + b * (K @ K)
+
+
+def _terms(t: torch.Tensor, rot: torch.Tensor, window: WindowInput, sole_m: float, c: SceneOptimisationConfig,
+           t0: torch.Tensor, offsets: torch.Tensor, planes: torch.Tensor, stance: torch.Tensor
+           ) -> dict[str, torch.Tensor]:
+    """Each term's value (unweighted) for translations ``t`` (N, 3) and body turns ``rot`` (axis-angle, N, 3)."""
+    feet = t[:, None, :] + torch.einsum("nab,nkb->nka", _rodrigues(rot), offsets)  # (N, 2, 3)
+    zero = t.new_zeros(())
+    has_plane = stance & torch.isfinite(planes).all(-1)
+    if has_plane.any():
+        p = planes[has_plane]
+        height = (p[:, :3] * feet[has_plane]).sum(-1) + p[:, 3] - sole_m
+        contact = torch.nn.functional.huber_loss(height, torch.zeros_like(height), delta=c.contact_huber_m)
+    else:
+        contact = zero
+    all_t, all_feet, all_stance = t, feet, stance
+    if window.before is not None:
+        t_b, feet_b = (torch.as_tensor(a, dtype=t.dtype) for a in window.before)
+        all_t, all_feet = torch.cat([t_b[None], t]), torch.cat([feet_b[None], feet])
+        all_stance = torch.cat([stance[:1], stance])  # the frame before counts as standing as the first does
+    both = all_stance[1:] & all_stance[:-1]
+    sliding = ((all_feet[1:] - all_feet[:-1])[both] ** 2).sum(-1).mean() if both.any() else zero
+    orientation = (rot**2).sum(-1).mean() + ((rot[1:] - rot[:-1]) ** 2).sum(-1).mean()
+    steps = torch.linalg.norm(all_t[1:] - all_t[:-1], dim=-1)
+    suit = torch.as_tensor(window.suit_steps[-len(steps):], dtype=t.dtype) if len(steps) else steps
+    smoothness = ((steps - suit) ** 2).mean() if len(steps) else zero
+    prior = ((t - t0) ** 2).sum(-1).mean()
+    return {"contact": contact, "sliding": sliding, "orientation": orientation, "smoothness": smoothness,
+            "prior": prior}
+
+
+def optimise_window(window: WindowInput, sole_m: float, config: SceneOptimisationConfig | None = None
+                    ) -> WindowResult:
+    """Optimise one window (module docstring); ``sole_m``: how far the foot joint stands above its sole."""
+    c = config or SceneOptimisationConfig()
+    dtype = torch.float64
+    t0 = torch.as_tensor(window.t0, dtype=dtype)
+    offsets = torch.as_tensor(window.offsets, dtype=dtype)
+    planes = torch.as_tensor(window.planes, dtype=dtype)
+    stance = torch.as_tensor(window.stance, dtype=torch.bool)
+    t = t0.clone().requires_grad_(True)
+    rot = torch.zeros_like(t0).requires_grad_(True)
+    weights = {name: getattr(c, name) for name in TERMS}
+
+    def evaluate() -> dict[str, torch.Tensor]:
+        return _terms(t, rot, window, sole_m, c, t0, offsets, planes, stance)
+
+    with torch.no_grad():
+        before = {k: float(v) for k, v in evaluate().items()}
+    optimiser = torch.optim.LBFGS([t, rot], lr=1.0, max_iter=c.iterations, line_search_fn="strong_wolfe",
+                                  tolerance_grad=1e-12, tolerance_change=1e-14)
+
+    def closure() -> torch.Tensor:
+        optimiser.zero_grad()
+        terms = evaluate()
+        loss = sum(weights[k] * terms[k] for k in TERMS)
+        loss.backward()
+        return loss
+
+    optimiser.step(closure)
+    with torch.no_grad():
+        after = {k: float(v) for k, v in evaluate().items()}
+        R_turn = _rodrigues(rot).numpy()
+        feet = (t[:, None, :] + torch.einsum("nab,nkb->nka", _rodrigues(rot), offsets)).numpy()
+    return WindowResult(t.detach().numpy().copy(), R_turn @ window.R0, feet, before, after)
+
+
+
+@dataclass(frozen=True)
+class SequenceResult:
+    """A whole sequence optimised window by window: pelvis poses T_map_P (N, 4, 4), feet (N, 2, 3), which foot
+    stood (N, 2), the planes found (N, 2, 4), the sole height used (m) and each window's terms before and after."""
+
+    pelvis: np.ndarray
+    feet: np.ndarray
+    stance: np.ndarray
+    planes: np.ndarray
+    sole_m: float
+    windows: list[WindowResult]
+
+
+def sole_height(feet: np.ndarray, stance: np.ndarray, planes: np.ndarray) -> float:
+    """The foot joint's height above its sole: the median height of the standing feet (N, 2, 3) above their planes
+    (N, 2, 4) (on the still start: the fused height is the LiDAR's there); NaN without any."""
+    ok = stance & np.isfinite(planes).all(-1)
+    if not ok.any():
+        return float("nan")
+    return float(np.median(np.einsum("ka,ka->k", planes[ok][:, :3], feet[ok]) + planes[ok][:, 3]))
+
+
+def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, feet: np.ndarray, suit_pelvis: np.ndarray,
+                      suit_feet: np.ndarray, map_at: Callable[[int], np.ndarray],
+                      config: SceneOptimisationConfig | None = None, sole_m: float | None = None,
+                      seed: int = 0) -> SequenceResult:
+    """Optimise N frames at times ``t_s`` in windows of ``config.window``, each once its last frame is in (as a
+    live optimiser one window behind would): the fused pelvis poses T_map_P (N, 4, 4) and feet (N, 2, 3) in
+    ``map``, the pelvis (N, 3) and the feet (N, 2, 3) as the suit alone places them (any frame: for the step
+    lengths and the stance), the map's points when
+    frame ``k`` was the newest (``map_at(k)``, (M, 3) in ``map``). ``sole_m`` None: measured in the first window
+    (:func:`sole_height`; ValueError if no standing foot has a plane there)."""
+    c = config or SceneOptimisationConfig()
+    rng = np.random.default_rng(seed)
+    stance = stance_from_suit(suit_feet, t_s, c.stance_speed_mps)
+    planes = np.full(stance.shape + (4,), np.nan)
+    out_pelvis, out_feet = pelvis.copy(), feet.copy()
+    windows: list[WindowResult] = []
+    suit_steps = np.concatenate([[0.0], np.linalg.norm(np.diff(suit_pelvis, axis=0), axis=1)])
+    fused_steps = np.concatenate([[0.0], np.linalg.norm(np.diff(pelvis[:, :3, 3], axis=0), axis=1)])
+    before = None
+    for start in range(0, len(t_s), c.window):
+        w = slice(start, min(start + c.window, len(t_s)))
+        planes[w] = fit_foot_planes(feet[w], stance[w], map_at(w.stop - 1), rng, c)
+        if sole_m is None:
+            sole_m = sole_height(feet[w], stance[w], planes[w])
+            if not np.isfinite(sole_m):
+                raise ValueError("no standing foot with a ground plane in the first window: no sole height")
+        t0 = pelvis[w, :3, 3]
+        scale = fused_steps[w].sum() / suit_steps[w].sum() if suit_steps[w].sum() > 0.0 else 1.0
+        result = optimise_window(WindowInput(t0, pelvis[w, :3, :3], feet[w] - t0[:, None, :], stance[w], planes[w],
+                                             scale * suit_steps[w], before), sole_m, c)
+        out_pelvis[w, :3, :3], out_pelvis[w, :3, 3], out_feet[w] = result.R, result.t, result.feet
+        before = (result.t[-1], result.feet[-1])
+        windows.append(result)
+    return SequenceResult(out_pelvis, out_feet, stance, planes, float(sole_m), windows)

@@ -1,0 +1,149 @@
+"""The scene-aware optimisation on a synthetic walk whose ground, stance and true feet are known."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from lip_ros.hsc4d.scene_optimisation import (
+    TERMS,
+    SceneOptimisationConfig,
+    fit_foot_planes,
+    optimise_sequence,
+    sole_height,
+    stance_from_suit,
+    without,
+)
+
+RATE_HZ = 10.0
+SOLE_M = 0.03  # the foot joint above its sole
+SPEED = 1.0  # m/s
+
+
+def _walk(seconds: float = 10.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Times (N,), the true pelvis (N, 3), the true feet (N, 2, 3) and which foot stands (N, 2) of a straight walk
+    on z = 0: each foot stands 0.6 s and swings 0.6 s (moving 1.2 m), the other out of phase."""
+    t = np.arange(0.0, seconds, 1.0 / RATE_HZ)
+    pelvis = np.column_stack([SPEED * t, np.zeros_like(t), np.full_like(t, 0.95)])
+    feet = np.zeros((len(t), 2, 3))
+    stance = np.zeros((len(t), 2), dtype=bool)
+    for foot, (phase, side) in enumerate(((0.0, 0.1), (0.6, -0.1))):
+        cycle = ((t + phase) % 1.2) / 1.2  # 0..0.5 stance, 0.5..1 swing
+        plant = SPEED * (t + phase - cycle * 1.2) + 0.3  # where this cycle's stance stands
+        swing = np.clip((cycle - 0.5) / 0.5, 0.0, 1.0)
+        feet[:, foot, 0] = plant + 1.2 * swing
+        feet[:, foot, 1] = side
+        feet[:, foot, 2] = SOLE_M + 0.1 * np.sin(np.pi * swing)
+        stance[:, foot] = cycle < 0.5
+    return t, pelvis, feet, stance
+
+
+def _ground(rng: np.random.Generator) -> np.ndarray:
+    """The map: ground points on z = 0 every 10 cm, 5 mm of noise."""
+    x, y = np.meshgrid(np.arange(-1.0, 12.0, 0.1), np.arange(-1.0, 1.0, 0.1))
+    points = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    return points + rng.normal(0.0, 0.005, points.shape)
+
+
+def _poses(positions: np.ndarray) -> np.ndarray:
+    out = np.tile(np.eye(4), (len(positions), 1, 1))
+    out[:, :3, 3] = positions
+    return out
+
+
+def _errors(feet: np.ndarray, stance: np.ndarray) -> tuple[float, float]:
+    """Mean |height above the ground - the sole's| and mean step of a standing foot (m)."""
+    contact = float(np.abs(feet[..., 2] - SOLE_M)[stance].mean())
+    both = stance[1:] & stance[:-1]
+    return contact, float(np.linalg.norm(np.diff(feet, axis=0)[both], axis=-1).mean())
+
+
+@pytest.fixture(scope="module")
+def walk():
+    rng = np.random.default_rng(0)
+    t, pelvis, feet, stance = _walk()
+    fused = pelvis + rng.normal(0.0, 0.015, pelvis.shape) + [0.0, 0.0, 0.03]  # LiDAR jitter, 3 cm too high
+    suit = pelvis @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).T * 1.03  # turned, 3 % long
+    return t, pelvis, feet, stance, fused, suit, _ground(rng)
+
+
+def test_stance_from_the_suit_is_the_still_foot(walk):
+    t, _, feet, stance, *_ = walk
+    found = stance_from_suit(feet, t, SceneOptimisationConfig().stance_speed_mps)
+    assert not (found[:, 0] & found[:, 1]).any()  # one foot at a time, the slower
+    assert (found == stance).mean() > 0.9  # central differences blur the first and last frame of a stance
+
+
+def test_planes_fitted_under_standing_feet_on_a_ramp():
+    rng = np.random.default_rng(1)
+    slope = np.tan(np.radians(10.0))
+    x, y = np.meshgrid(np.arange(0.0, 4.0, 0.1), np.arange(-1.0, 1.0, 0.1))
+    points = np.column_stack([x.ravel(), y.ravel(), slope * x.ravel()])
+    feet = np.array([[[1.0, 0.1, slope + SOLE_M], [2.0, -0.1, 2 * slope + 0.2]]])
+    stance = np.array([[True, False]])
+    planes = fit_foot_planes(feet, stance, points, rng, SceneOptimisationConfig())
+    normal = planes[0, 0, :3]
+    assert np.degrees(np.arccos(normal[2])) == pytest.approx(10.0, abs=0.5)
+    assert normal @ feet[0, 0] + planes[0, 0, 3] == pytest.approx(SOLE_M * np.cos(np.radians(10.0)), abs=0.005)
+    assert np.isnan(planes[0, 1]).all()  # not standing: no plane
+    nothing = fit_foot_planes(feet, stance, points[:0], rng, SceneOptimisationConfig())
+    assert np.isnan(nothing).all()
+
+
+def test_sole_height_is_the_median_standing_height(walk):
+    t, _, feet, stance, *_ = walk
+    planes = np.zeros(stance.shape + (4,))
+    planes[..., 2] = 1.0  # z = 0
+    assert sole_height(feet, stance, planes) == pytest.approx(SOLE_M)
+    assert np.isnan(sole_height(feet, np.zeros_like(stance), planes))
+
+
+def test_optimisation_puts_the_feet_on_the_ground_and_stops_them_sliding(walk):
+    t, pelvis, feet, stance, fused, suit, ground = walk
+    offsets = feet - pelvis[:, None]
+    start = fused[:, None] + offsets
+    config = replace(SceneOptimisationConfig(), window=50)  # two windows: the second continues the first
+    result = optimise_sequence(t, _poses(fused), start, suit, feet, lambda k: ground, config, sole_m=SOLE_M)
+    before, after = _errors(start, stance), _errors(result.feet, stance)
+    assert before[0] > 0.025 and before[1] > 0.015  # 3 cm high, 1.5 cm of jitter
+    assert after[0] < 0.5 * before[0]  # not all of it: the prior holds the pelvis where the landmarks put it
+    assert after[1] < 0.6 * before[1]
+    assert np.linalg.norm(result.pelvis[:, :3, 3] - pelvis, axis=1).mean() < np.linalg.norm(fused - pelvis,
+                                                                                             axis=1).mean()
+    for window in result.windows:  # each term the optimisation weighs went down or stayed
+        assert sum(getattr(config, k) * window.after[k] for k in TERMS) < sum(
+            getattr(config, k) * window.before[k] for k in TERMS)
+    assert np.allclose(np.linalg.det(result.pelvis[:, :3, :3]), 1.0)
+
+
+def test_each_term_does_its_part(walk):
+    """The ablation on the synthetic walk: without contact the feet stay high; without sliding they slide more."""
+    t, pelvis, feet, stance, fused, suit, ground = walk
+    start = fused[:, None] + (feet - pelvis[:, None])
+    full = SceneOptimisationConfig()
+
+    def errors(config: SceneOptimisationConfig) -> tuple[float, float]:
+        return _errors(optimise_sequence(t, _poses(fused), start, suit, feet, lambda k: ground, config,
+                                         sole_m=SOLE_M).feet, stance)
+
+    both = errors(full)
+    assert errors(without(full, "contact"))[0] > 2.0 * both[0]
+    assert errors(without(full, "sliding"))[1] > 1.2 * both[1]
+
+
+def test_sole_height_needs_a_plane_in_the_first_window(walk):
+    t, pelvis, feet, stance, fused, suit, _ = walk
+    with pytest.raises(ValueError, match="sole height"):
+        optimise_sequence(t, _poses(fused), feet, suit, feet, lambda k: np.zeros((0, 3)))
+
+
+def test_config_checks():
+    with pytest.raises(ValueError):
+        SceneOptimisationConfig(window=2)
+    with pytest.raises(ValueError):
+        SceneOptimisationConfig(contact=-1.0)
+    with pytest.raises(ValueError, match="unknown term"):
+        without(SceneOptimisationConfig(), "gravity")
+    assert without(SceneOptimisationConfig(), "sliding").sliding == 0.0
