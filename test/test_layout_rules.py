@@ -5,8 +5,8 @@
 - ROS (rclpy and the message packages) only in ``lip_ros.nodes``, ``lip_ros.tools`` and the rclpy backend of
   ``lip_msgs_py``; the ROS-free packages never import the nodes or tools either.
 - Heavy libraries only in the modules that wrap them: torch in the LIP networks, their training, the
-  torch kinematics and the HSC4D scene-aware optimisation; kiss-icp and gtsam each in one module of the HSC4D branch; embreex in the rig's mesh
-  ray casting.
+  torch kinematics and the HSC4D scene-aware optimisation; kiss-icp and gtsam each in one module of the
+  HSC4D branch; embreex in the rig's mesh ray casting.
 - Every installed executable starts in ``lip_ros.nodes`` or ``lip_ros.tools``.
 """
 

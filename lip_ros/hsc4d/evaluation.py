@@ -27,7 +27,8 @@ loss term left out in turn (the ablation). :func:`body_metrics`
 reports, against the truth and under the same alignment, the checkpoint error
 (the foot joint at the middle of each true stance), the foot contact error (a
 standing foot's height above the true surface under it against the truth's),
-foot sliding per frame and the root-relative MPJPE.
+foot sliding per frame and the root-relative MPJPE; :func:`map_metrics` the
+live map's distance to the true scene surface.
 """
 
 from __future__ import annotations
@@ -44,11 +45,12 @@ from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d.scene_optimisation import TERMS, SceneOptimisationConfig, optimise_sequence, without
 from lip_ros.hsc4d.suit_body import SuitBody, SuitBodyConfig
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline
+from lip_ros.rig.mesh_raycast import MeshRaycaster
 from lip_ros.rig.site_capture import SiteCapture
 from lip_ros.rig.terrain import Terrain
 
 __all__ = ["METHODS", "ABLATIONS", "TrajectoryRun", "run_capture", "aligned", "trajectory_metrics",
-           "body_metrics"]
+           "body_metrics", "map_metrics"]
 
 #: the trajectories compared, in report order
 METHODS = ("baseline1_suit", "baseline2_lidar", "live", "live_optimised", "refined_graph", "refined")
@@ -65,7 +67,7 @@ class TrajectoryRun:
     (s), the suit clock offset found and the true one (ns), which registrations were not believed (N,), the time
     each sweep took in ``add_sweep`` (ms; the sweeps held until the jump are registered together in the call that
     finds it, each counted at that call's time over their number), the optimisation's time per window (s), the
-    sole height it measured (m) and the pipeline's counters."""
+    sole height it measured (m), the pipeline's counters and the live map's points at the end (M, 3) in ``map``."""
 
     seed: int
     t_s: np.ndarray
@@ -83,6 +85,7 @@ class TrajectoryRun:
     window_s: np.ndarray
     sole_m: float
     counts: dict[str, int]
+    live_map: np.ndarray
 
 
 def _suit_pelvis(capture: SiteCapture, suit_ns: np.ndarray) -> np.ndarray:
@@ -195,7 +198,7 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                          truth.pelvis, truth.joints, capture.terrain.surface_height(truth.pelvis[:, :2]),
                          truth.contacts.stance, (jump - capture.epoch_ns) * 1e-9, int(pipeline.offset_ns),
                          true_offset, np.array([bool(s.rejected) for s in steps]), np.array(sweep_ms), window_s,
-                         sole, dict(pipeline.counts))
+                         sole, dict(pipeline.counts), final_map)
 
 
 def _fit_window(run: TrajectoryRun, fit_s: float) -> np.ndarray:
@@ -272,3 +275,16 @@ def body_metrics(run: TrajectoryRun, terrain: Terrain, fit_s: float = 5.0) -> di
             "mpjpe_mm": 1000.0 * float(mpjpe(joints[after], run.true_joints[after]).mean()),
         }
     return out
+
+
+def map_metrics(run: TrajectoryRun, terrain: Terrain, fit_s: float = 5.0, max_m: float = 1.0) -> dict[str, float]:
+    """The live map at the end against the true scene, under the live trajectory's alignment: the median and 90th
+    percentile distance of its points to the scene's surface (m; :meth:`MeshRaycaster.surface_distance`, at most
+    7 % high) and the fraction farther than ``max_m`` (or seen nowhere near a surface)."""
+    T = _alignment(run, "live", fit_s)
+    points = run.live_map @ T[:3, :3].T + T[:3, 3]
+    d = MeshRaycaster(terrain.triangles()).surface_distance(points, max_range=max_m)
+    near = d[np.isfinite(d)]
+    return {"map_median_m": float(np.median(near)) if near.size else float("nan"),
+            "map_p90_m": float(np.percentile(near, 90)) if near.size else float("nan"),
+            "map_far_fraction": float(1.0 - near.size / max(len(d), 1)), "map_points": int(len(d))}

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lip_ros.core.rotations import rot_x
-from lip_ros.hsc4d.evaluation import ABLATIONS, METHODS, body_metrics, run_capture, trajectory_metrics
+from lip_ros.hsc4d.evaluation import ABLATIONS, METHODS, body_metrics, map_metrics, run_capture, trajectory_metrics
 from lip_ros.hsc4d.jump_sync import JumpSync
 from lip_ros.hsc4d.lidar_odometry import LidarOdometry, WearerFilter
 from lip_ros.hsc4d.map_frame import estimate_map_frame
@@ -108,6 +108,8 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
         assert body[name]["sliding_m"] <= body["baseline1_suit"]["sliding_m"]
     assert body["baseline1_suit"]["contact_m"] > 2.0 * body["refined"]["contact_m"]
     assert 0.0 < run.sole_m < 0.1 and len(run.window_s) >= 2
+    scene = map_metrics(run, capture.terrain)
+    assert scene["map_median_m"] < 0.05 and scene["map_p90_m"] < 0.2 and scene["map_far_fraction"] < 0.05
 
 
 def test_without_a_jump_the_pipeline_holds_a_bounded_number_of_sweeps_and_says_why():
