@@ -33,7 +33,8 @@ import torch
 from lip_ros.core.ground_plane import fit_ground_plane
 
 __all__ = ["SceneOptimisationConfig", "WindowInput", "WindowResult", "TERMS", "stance_from_suit",
-           "fit_foot_planes", "optimise_window", "without", "SequenceResult", "sole_height", "optimise_sequence"]
+           "fit_foot_planes", "optimise_window", "without", "SequenceResult", "sole_height", "SceneOptimiser",
+           "optimise_sequence"]
 
 #: the loss terms, in report order
 TERMS = ("contact", "sliding", "orientation", "smoothness", "prior")
@@ -239,6 +240,74 @@ def sole_height(feet: np.ndarray, stance: np.ndarray, planes: np.ndarray) -> flo
     return float(np.median(np.einsum("ka,ka->k", planes[ok][:, :3], feet[ok]) + planes[ok][:, 3]))
 
 
+class SceneOptimiser:
+    """The optimisation live: frames go in one at a time (:meth:`add`); once :attr:`full`, :meth:`optimise` solves
+    them on the map as it stands then, continuing from the window before. The sole height is measured in the first
+    window optimised (the still start; see :func:`sole_height`) unless given."""
+
+    def __init__(self, config: SceneOptimisationConfig | None = None, sole_m: float | None = None,
+                 seed: int = 0) -> None:
+        self.config = config or SceneOptimisationConfig()
+        self.sole_m = sole_m
+        self._rng = np.random.default_rng(seed)
+        self._frames: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._before: tuple[np.ndarray, np.ndarray] | None = None
+        self._last_suit: np.ndarray | None = None  # the suit's pelvis at the window before's last frame
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    @property
+    def full(self) -> bool:
+        """Whether a whole window is waiting."""
+        return len(self._frames) >= self.config.window
+
+    def add(self, t_s: float, pelvis: np.ndarray, feet: np.ndarray, suit_pelvis: np.ndarray,
+            suit_feet: np.ndarray) -> None:
+        """One frame at ``t_s`` (s): the fused pelvis pose T_map_P (4, 4) and feet (2, 3) in ``map``, the pelvis
+        (3,) and feet (2, 3) as the suit alone places them (any frame). Frames beyond a window are refused
+        (RuntimeError): optimise first."""
+        if self.full:
+            raise RuntimeError("a whole window is waiting: optimise it first")
+        self._frames.append((float(t_s), np.asarray(pelvis, dtype=np.float64), np.asarray(feet, dtype=np.float64),
+                             np.asarray(suit_pelvis, dtype=np.float64), np.asarray(suit_feet, dtype=np.float64)))
+
+    def drop(self) -> int:
+        """Forget the frames waiting (and the continuity with the window before: a gap follows); how many."""
+        n = len(self._frames)
+        self._frames.clear()
+        self._before = self._last_suit = None
+        return n
+
+    def optimise(self, points: np.ndarray) -> tuple[WindowResult, np.ndarray, np.ndarray]:
+        """Optimise the frames waiting (a window, or what there is at the end) on the map's ``points`` (M, 3) in
+        ``map``: the result, which foot stood (N, 2) and the planes under them (N, 2, 4). ValueError without
+        frames, or when the sole height is still unknown and no standing foot has a plane (the frames are
+        kept: try again with a later map, or :meth:`drop` them)."""
+        if not self._frames:
+            raise ValueError("no frames to optimise")
+        c = self.config
+        t_s, pelvis, feet, suit_pelvis, suit_feet = (np.array(a) for a in zip(*self._frames, strict=True))
+        stance = stance_from_suit(suit_feet, t_s, c.stance_speed_mps)
+        planes = fit_foot_planes(feet, stance, np.asarray(points, dtype=np.float64).reshape(-1, 3), self._rng, c)
+        sole = self.sole_m if self.sole_m is not None else sole_height(feet, stance, planes)
+        if not np.isfinite(sole):
+            raise ValueError("no standing foot with a ground plane: no sole height yet")
+        self.sole_m = float(sole)
+        chain = suit_pelvis if self._last_suit is None else np.concatenate([self._last_suit[None], suit_pelvis])
+        suit_steps = np.linalg.norm(np.diff(chain, axis=0), axis=1)
+        fused_steps = np.linalg.norm(np.diff(pelvis[:, :3, 3], axis=0), axis=1)
+        if self._last_suit is None:
+            suit_steps = np.concatenate([[0.0], suit_steps])
+        scale = fused_steps.sum() / suit_steps[1:].sum() if suit_steps[1:].sum() > 0.0 else 1.0
+        t0 = pelvis[:, :3, 3]
+        result = optimise_window(WindowInput(t0, pelvis[:, :3, :3], feet - t0[:, None, :], stance, planes,
+                                             scale * suit_steps, self._before), self.sole_m, c)
+        self._before, self._last_suit = (result.t[-1], result.feet[-1]), suit_pelvis[-1]
+        self._frames.clear()
+        return result, stance, planes
+
+
 def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, feet: np.ndarray, suit_pelvis: np.ndarray,
                       suit_feet: np.ndarray, map_at: Callable[[int], np.ndarray],
                       config: SceneOptimisationConfig | None = None, sole_m: float | None = None,
@@ -246,30 +315,20 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, feet: np.ndarray, sui
     """Optimise N frames at times ``t_s`` in windows of ``config.window``, each once its last frame is in (as a
     live optimiser one window behind would): the fused pelvis poses T_map_P (N, 4, 4) and feet (N, 2, 3) in
     ``map``, the pelvis (N, 3) and the feet (N, 2, 3) as the suit alone places them (any frame: for the step
-    lengths and the stance), the map's points when
-    frame ``k`` was the newest (``map_at(k)``, (M, 3) in ``map``). ``sole_m`` None: measured in the first window
-    (:func:`sole_height`; ValueError if no standing foot has a plane there)."""
-    c = config or SceneOptimisationConfig()
-    rng = np.random.default_rng(seed)
-    stance = stance_from_suit(suit_feet, t_s, c.stance_speed_mps)
-    planes = np.full(stance.shape + (4,), np.nan)
+    lengths and the stance), the map's points when frame ``k`` was the newest (``map_at(k)``, (M, 3) in
+    ``map``), with a :class:`SceneOptimiser`. ``sole_m`` None: measured in the first window (:func:`sole_height`;
+    ValueError if no standing foot has a plane there)."""
+    optimiser = SceneOptimiser(config, sole_m, seed)
+    window = optimiser.config.window
     out_pelvis, out_feet = pelvis.copy(), feet.copy()
+    stance = np.zeros((len(t_s), 2), dtype=bool)
+    planes = np.full((len(t_s), 2, 4), np.nan)
     windows: list[WindowResult] = []
-    suit_steps = np.concatenate([[0.0], np.linalg.norm(np.diff(suit_pelvis, axis=0), axis=1)])
-    fused_steps = np.concatenate([[0.0], np.linalg.norm(np.diff(pelvis[:, :3, 3], axis=0), axis=1)])
-    before = None
-    for start in range(0, len(t_s), c.window):
-        w = slice(start, min(start + c.window, len(t_s)))
-        planes[w] = fit_foot_planes(feet[w], stance[w], map_at(w.stop - 1), rng, c)
-        if sole_m is None:
-            sole_m = sole_height(feet[w], stance[w], planes[w])
-            if not np.isfinite(sole_m):
-                raise ValueError("no standing foot with a ground plane in the first window: no sole height")
-        t0 = pelvis[w, :3, 3]
-        scale = fused_steps[w].sum() / suit_steps[w].sum() if suit_steps[w].sum() > 0.0 else 1.0
-        result = optimise_window(WindowInput(t0, pelvis[w, :3, :3], feet[w] - t0[:, None, :], stance[w], planes[w],
-                                             scale * suit_steps[w], before), sole_m, c)
+    for start in range(0, len(t_s), window):
+        w = slice(start, min(start + window, len(t_s)))
+        for k in range(w.start, w.stop):
+            optimiser.add(t_s[k], pelvis[k], feet[k], suit_pelvis[k], suit_feet[k])
+        result, stance[w], planes[w] = optimiser.optimise(map_at(w.stop - 1))
         out_pelvis[w, :3, :3], out_pelvis[w, :3, 3], out_feet[w] = result.R, result.t, result.feet
-        before = (result.t[-1], result.feet[-1])
         windows.append(result)
-    return SequenceResult(out_pelvis, out_feet, stance, planes, float(sole_m), windows)
+    return SequenceResult(out_pelvis, out_feet, stance, planes, float(optimiser.sole_m), windows)

@@ -10,6 +10,7 @@ import pytest
 from lip_ros.hsc4d.scene_optimisation import (
     TERMS,
     SceneOptimisationConfig,
+    SceneOptimiser,
     fit_foot_planes,
     optimise_sequence,
     sole_height,
@@ -147,3 +148,24 @@ def test_config_checks():
     with pytest.raises(ValueError, match="unknown term"):
         without(SceneOptimisationConfig(), "gravity")
     assert without(SceneOptimisationConfig(), "sliding").sliding == 0.0
+
+
+def test_the_live_optimiser_takes_frames_one_window_at_a_time(walk):
+    t, pelvis, feet, stance, fused, suit, ground = walk
+    start = fused[:, None] + (feet - pelvis[:, None])
+    config = replace(SceneOptimisationConfig(), window=50)
+    optimiser = SceneOptimiser(config, sole_m=SOLE_M)
+    with pytest.raises(ValueError, match="no frames"):
+        optimiser.optimise(ground)
+    out = []
+    for k in range(len(t)):
+        optimiser.add(t[k], _poses(fused)[k], start[k], suit[k], feet[k])
+        if optimiser.full:
+            with pytest.raises(RuntimeError, match="optimise it first"):
+                optimiser.add(t[k], _poses(fused)[k], start[k], suit[k], feet[k])
+            out.append(optimiser.optimise(ground)[0].feet)
+    assert len(optimiser) == 0 and len(out) == 2
+    whole = optimise_sequence(t, _poses(fused), start, suit, feet, lambda k: ground, config, sole_m=SOLE_M)
+    assert np.allclose(np.concatenate(out), whole.feet)  # the batch tool runs the same code
+    optimiser.add(t[0], _poses(fused)[0], start[0], suit[0], feet[0])
+    assert optimiser.drop() == 1 and len(optimiser) == 0
