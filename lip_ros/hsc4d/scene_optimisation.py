@@ -12,8 +12,9 @@ turns the whole body about the pelvis (a small rotation per frame) to minimise
 * **sliding**: a standing foot's motion from one frame to the next, while it stands in both;
 * **orientation**: the body's turn away from the fused rotation (the landmarks; the suit's rotation) and its
   change from frame to frame (as smooth as the suit's);
-* **smoothness**: the pelvis's step from frame to frame against the suit's (the paper's: move as smoothly as the
-  suit; the suit's steps scaled by the window's path over theirs, since its stride scale is off by a few per cent);
+* **smoothness**: the pelvis's horizontal step from frame to frame against the suit's (the paper's: move as smoothly
+  as the suit; horizontal, since the suit's odometry knows no stairs and no jumps; the suit's steps scaled by the
+  window's path over theirs, since its stride scale is off by a few per cent);
 * **prior**: the translation's distance from the fused one (the landmarks' hold on the window).
 
 Each term is a mean over the window, weighted (:class:`SceneOptimisationConfig`); a weight of zero drops the term
@@ -56,7 +57,7 @@ class SceneOptimisationConfig:
     contact: float = 3.0  # weights: per m^2 of the mean squared (Huber) residual ...
     sliding: float = 3.0  # ... per m^2 of a standing foot's step
     orientation: float = 1.0  # ... per rad^2 of the turn away from the fused rotation and of its change
-    smoothness: float = 1.0  # ... per m^2 of a frame's step length off the suit's
+    smoothness: float = 1.0  # ... per m^2 of a frame's horizontal step length off the suit's
     prior: float = 1.0  # ... per m^2 of the translation's distance from the fused one
     iterations: int = 60  # L-BFGS iterations per window
 
@@ -80,7 +81,7 @@ class WindowInput:
     """One window of N frames: the fused pelvis translations ``t0`` (N, 3) and rotations ``R0`` (N, 3, 3) in
     ``map``, the foot joints' offsets from the pelvis (N, 2, 3) in ``map`` (left, right), which foot stands (N, 2)
     and the ground plane under it (N, 2, 4: unit normal and offset, ``n . p + d = 0``; NaN where none), the suit's
-    pelvis step length into each frame (N,; the first is used only with ``before``); ``before``:
+    pelvis horizontal step length into each frame (N,; the first is used only with ``before``); ``before``:
     the previous window's last frame as optimised (its translation (3,) and feet (2, 3)), or None."""
 
     t0: np.ndarray
@@ -173,7 +174,7 @@ def _terms(t: torch.Tensor, rot: torch.Tensor, window: WindowInput, sole_m: floa
     both = all_stance[1:] & all_stance[:-1]
     sliding = ((all_feet[1:] - all_feet[:-1])[both] ** 2).sum(-1).mean() if both.any() else zero
     orientation = (rot**2).sum(-1).mean() + ((rot[1:] - rot[:-1]) ** 2).sum(-1).mean()
-    steps = torch.linalg.norm(all_t[1:] - all_t[:-1], dim=-1)
+    steps = torch.linalg.norm(all_t[1:, :2] - all_t[:-1, :2], dim=-1)  # horizontal: the suit knows no heights
     suit = torch.as_tensor(window.suit_steps[-len(steps):], dtype=t.dtype) if len(steps) else steps
     smoothness = ((steps - suit) ** 2).mean() if len(steps) else zero
     prior = ((t - t0) ** 2).sum(-1).mean()
@@ -241,9 +242,11 @@ def sole_height(feet: np.ndarray, stance: np.ndarray, planes: np.ndarray) -> flo
 
 
 class SceneOptimiser:
-    """The optimisation live: frames go in one at a time (:meth:`add`); once :attr:`full`, :meth:`optimise` solves
-    them on the map as it stands then, continuing from the window before. The sole height is measured in the first
-    window optimised (the still start; see :func:`sole_height`) unless given."""
+    """The optimisation live: frames go in one at a time (:meth:`add`); once a window is :attr:`full`,
+    :meth:`optimise` solves its oldest window on the map as it stands then, continuing from the window before.
+    The sole height is measured in the first window optimised (the still start; see :func:`sole_height`) unless
+    given; until a map shows the ground under that window's feet, its frames wait (up to a second window behind
+    it: then the oldest window must be :meth:`drop` ped)."""
 
     def __init__(self, config: SceneOptimisationConfig | None = None, sole_m: float | None = None,
                  seed: int = 0) -> None:
@@ -262,41 +265,50 @@ class SceneOptimiser:
         """Whether a whole window is waiting."""
         return len(self._frames) >= self.config.window
 
+    @property
+    def capacity(self) -> int:
+        """Frames that may wait: two windows."""
+        return 2 * self.config.window
+
     def add(self, t_s: float, pelvis: np.ndarray, feet: np.ndarray, suit_pelvis: np.ndarray,
             suit_feet: np.ndarray) -> None:
         """One frame at ``t_s`` (s): the fused pelvis pose T_map_P (4, 4) and feet (2, 3) in ``map``, the pelvis
-        (3,) and feet (2, 3) as the suit alone places them (any frame). Frames beyond a window are refused
-        (RuntimeError): optimise first."""
-        if self.full:
-            raise RuntimeError("a whole window is waiting: optimise it first")
+        (3,) and feet (2, 3) as the suit alone places them (any frame). Refused (RuntimeError) beyond
+        :attr:`capacity`: optimise or drop first."""
+        if len(self._frames) >= self.capacity:
+            raise RuntimeError(f"{len(self._frames)} frames are waiting: optimise or drop first")
         self._frames.append((float(t_s), np.asarray(pelvis, dtype=np.float64), np.asarray(feet, dtype=np.float64),
                              np.asarray(suit_pelvis, dtype=np.float64), np.asarray(suit_feet, dtype=np.float64)))
 
-    def drop(self) -> int:
-        """Forget the frames waiting (and the continuity with the window before: a gap follows); how many."""
-        n = len(self._frames)
-        self._frames.clear()
+    def drop(self, n: int | None = None) -> int:
+        """Forget the oldest ``n`` frames waiting (None: all) and the continuity with the window before them (a
+        gap follows); how many were dropped."""
+        n = len(self._frames) if n is None else min(n, len(self._frames))
+        del self._frames[:n]
         self._before = self._last_suit = None
         return n
 
     def optimise(self, points: np.ndarray) -> tuple[WindowResult, np.ndarray, np.ndarray]:
-        """Optimise the frames waiting (a window, or what there is at the end) on the map's ``points`` (M, 3) in
-        ``map``: the result, which foot stood (N, 2) and the planes under them (N, 2, 4). ValueError without
-        frames, or when the sole height is still unknown and no standing foot has a plane (the frames are
-        kept: try again with a later map, or :meth:`drop` them)."""
+        """Optimise the oldest window of frames waiting (or all of them, if fewer: the end of a capture) on the
+        map's ``points`` (M, 3) in ``map``: the result for those frames, which foot stood (N, 2) and the planes
+        under them (N, 2, 4). ValueError without frames, or when the sole height is still unknown and no standing
+        foot has a plane (the frames are kept: try again with a later map, or drop them)."""
         if not self._frames:
             raise ValueError("no frames to optimise")
         c = self.config
-        t_s, pelvis, feet, suit_pelvis, suit_feet = (np.array(a) for a in zip(*self._frames, strict=True))
+        frames = self._frames[: c.window]
+        t_s, pelvis, feet, suit_pelvis, suit_feet = (np.array(a) for a in zip(*frames, strict=True))
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         stance = stance_from_suit(suit_feet, t_s, c.stance_speed_mps)
-        planes = fit_foot_planes(feet, stance, np.asarray(points, dtype=np.float64).reshape(-1, 3), self._rng, c)
+        planes = fit_foot_planes(feet, stance, points, self._rng, c)
         sole = self.sole_m if self.sole_m is not None else sole_height(feet, stance, planes)
         if not np.isfinite(sole):
-            raise ValueError("no standing foot with a ground plane: no sole height yet")
+            raise ValueError(f"no standing foot with a ground plane: no sole height yet ({int(stance.sum())} standing "
+                             f"feet in {len(t_s)} frames, {len(points)} map points)")
         self.sole_m = float(sole)
         chain = suit_pelvis if self._last_suit is None else np.concatenate([self._last_suit[None], suit_pelvis])
-        suit_steps = np.linalg.norm(np.diff(chain, axis=0), axis=1)
-        fused_steps = np.linalg.norm(np.diff(pelvis[:, :3, 3], axis=0), axis=1)
+        suit_steps = np.linalg.norm(np.diff(chain[:, :2], axis=0), axis=1)  # horizontal (the suit's frame is level)
+        fused_steps = np.linalg.norm(np.diff(pelvis[:, :2, 3], axis=0), axis=1)
         if self._last_suit is None:
             suit_steps = np.concatenate([[0.0], suit_steps])
         scale = fused_steps.sum() / suit_steps[1:].sum() if suit_steps[1:].sum() > 0.0 else 1.0
@@ -304,7 +316,7 @@ class SceneOptimiser:
         result = optimise_window(WindowInput(t0, pelvis[:, :3, :3], feet - t0[:, None, :], stance, planes,
                                              scale * suit_steps, self._before), self.sole_m, c)
         self._before, self._last_suit = (result.t[-1], result.feet[-1]), suit_pelvis[-1]
-        self._frames.clear()
+        del self._frames[: len(frames)]
         return result, stance, planes
 
 

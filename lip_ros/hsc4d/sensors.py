@@ -9,7 +9,8 @@ from __future__ import annotations
 from lip_ros.outputs import PoseTopics
 
 __all__ = ["HIP_LIDAR_TOPIC", "SUIT_ODOMETRY_TOPIC", "suit_imu_topic", "ODOMETRY_TOPIC", "MAP_TOPIC",
-           "SUIT_CLOCK_OFFSET_TOPIC", "MAP_FRAME", "PELVIS_FRAME", "HSC4D_TOPICS"]
+           "SUIT_CLOCK_OFFSET_TOPIC", "MAP_FRAME", "PELVIS_FRAME", "HSC4D_TOPICS", "OPTIMISED_ODOMETRY_TOPIC",
+           "OPTIMISED_TOPICS"]
 
 #: The hip-worn Ouster's PointCloud2.
 HIP_LIDAR_TOPIC = "/hip/points"
@@ -35,3 +36,9 @@ MAP_FRAME = "map"
 PELVIS_FRAME = "pelvis"
 #: The fused body's pose outputs.
 HSC4D_TOPICS = PoseTopics("/hsc4d/joint_states", "/hsc4d/root_pose", "/hsc4d/joint_poses")
+#: Out, beyond the contract: the pelvis after the scene-aware optimisation (nav_msgs/Odometry in :data:`MAP_FRAME`),
+#: a window of frames behind the fused one.
+OPTIMISED_ODOMETRY_TOPIC = "/hsc4d/optimised/odometry"
+#: Out, beyond the contract: the body after the scene-aware optimisation.
+OPTIMISED_TOPICS = PoseTopics("/hsc4d/optimised/joint_states", "/hsc4d/optimised/root_pose",
+                              "/hsc4d/optimised/joint_poses")

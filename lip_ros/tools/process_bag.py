@@ -52,6 +52,8 @@ from lip_ros.hsc4d.sensors import (
     HSC4D_TOPICS,
     MAP_TOPIC,
     ODOMETRY_TOPIC,
+    OPTIMISED_ODOMETRY_TOPIC,
+    OPTIMISED_TOPICS,
     SUIT_ODOMETRY_TOPIC,
     suit_imu_topic,
 )
@@ -69,6 +71,8 @@ MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their 
 CALIBRATION_FRAMES = f"{CalibrationNode.NAME}: frames"  # ... with the DOT latencies
 OFFSET_VALUE = "suit clock offset (ms)"  # of the HSC4D trajectory node's frames status
 CATCH_UP_PREFIX = "catch_up_latency_ms_"  # ... its latency of the sweeps that waited behind the backlog
+#: after every frame is accounted for, how long the HSC4D body node may take to optimise its last, partial window
+_OPTIMISATION_WAIT_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -93,8 +97,9 @@ LIP = Branch("lip", LIDAR_TOPIC, INPUT_TOPICS,
 HSC4D = Branch("hsc4d", HIP_LIDAR_TOPIC,
                (HIP_LIDAR_TOPIC, SUIT_ODOMETRY_TOPIC, *map(suit_imu_topic, load_skeleton().suit_imus)),
                (ODOMETRY_TOPIC, HSC4D_TOPICS.joint_states, HSC4D_TOPICS.root_pose, HSC4D_TOPICS.joint_poses,
-                MAP_TOPIC, "/diagnostics"), HSC4D_TOPICS.root_pose, "hsc4d_trajectory_node: frames", "latency_ms_",
-               f"{ODOMETRY_TOPIC} published", ("-p", "branch:=hsc4d"))
+                MAP_TOPIC, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS.joint_states, OPTIMISED_TOPICS.root_pose,
+                OPTIMISED_TOPICS.joint_poses, "/diagnostics"), HSC4D_TOPICS.root_pose, "hsc4d_trajectory_node: frames",
+               "latency_ms_", f"{ODOMETRY_TOPIC} published", ("-p", "branch:=hsc4d"))
 
 
 def branch_of_bag(bag: Path) -> Branch:
@@ -258,6 +263,7 @@ class _Watch:
         self.last_clock: float | None = None
         self.last_pose: float | None = None
         self.accounted = 0  # frames with an outcome or pending, per the nodes' last diagnostics
+        self.optimising = 0  # frames waiting for the HSC4D body node's scene-aware optimisation
         self._counts: dict[str, int] = {}  # "<node>: frames" -> frames accounted for there
         self.node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, CLOCK_QOS)
         self.node.create_subscription(PoseStamped, pose_topic, self._on_pose,
@@ -278,6 +284,8 @@ class _Watch:
             if s.name.endswith(": frames"):
                 self._counts[s.name] = sum(int(v) for k, v in s.values.items()
                                            if k.startswith("frames ") or k == "pending")
+                if "optimisation: frames waiting" in s.values:
+                    self.optimising = int(s.values["optimisation: frames waiting"])
         self.accounted = sum(self._counts.values())
 
     def spin_while(self, busy: Callable[[], bool], timeout_s: float) -> None:
@@ -351,6 +359,7 @@ def _run(argv: list[str]) -> int:
             raise ToolError("lip_bag_play failed")
         watch.spin_while(lambda: watch.accounted < frames_in and node.poll() is None, args.timeout)
         time.sleep(1.0)  # one more diagnostics period reaches the recorder
+        watch.spin_while(lambda: watch.optimising > 0 and node.poll() is None, _OPTIMISATION_WAIT_S)
     finally:
         for proc in reversed(procs):  # the player if still running, the recorder, the node
             proc.send_signal(signal.SIGINT)

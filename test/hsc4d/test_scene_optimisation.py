@@ -161,11 +161,17 @@ def test_the_live_optimiser_takes_frames_one_window_at_a_time(walk):
     for k in range(len(t)):
         optimiser.add(t[k], _poses(fused)[k], start[k], suit[k], feet[k])
         if optimiser.full:
-            with pytest.raises(RuntimeError, match="optimise it first"):
-                optimiser.add(t[k], _poses(fused)[k], start[k], suit[k], feet[k])
             out.append(optimiser.optimise(ground)[0].feet)
     assert len(optimiser) == 0 and len(out) == 2
     whole = optimise_sequence(t, _poses(fused), start, suit, feet, lambda k: ground, config, sole_m=SOLE_M)
     assert np.allclose(np.concatenate(out), whole.feet)  # the batch tool runs the same code
-    optimiser.add(t[0], _poses(fused)[0], start[0], suit[0], feet[0])
-    assert optimiser.drop() == 1 and len(optimiser) == 0
+    # without a sole height and no ground in the map yet, the window waits for a later map, up to two windows
+    waiting = SceneOptimiser(config)
+    for k in range(waiting.capacity):
+        waiting.add(t[k], _poses(fused)[k], start[k], suit[k], feet[k])
+    with pytest.raises(RuntimeError, match="optimise or drop"):
+        waiting.add(t[0], _poses(fused)[0], start[0], suit[0], feet[0])
+    with pytest.raises(ValueError, match="no sole height"):
+        waiting.optimise(np.zeros((0, 3)))
+    assert len(waiting) == 100 and waiting.optimise(ground)[0].t.shape == (50, 3) and len(waiting) == 50
+    assert waiting.drop(10) == 10 and len(waiting) == 40 and waiting.drop() == 40

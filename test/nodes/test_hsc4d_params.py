@@ -12,6 +12,7 @@ from helpers import console_script
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d import sensors
 from lip_ros.hsc4d.mount import HipMountPrior
+from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig
 from lip_ros.hsc4d.suit_body import SuitBodyConfig
 from lip_ros.hsc4d.trajectory import SUIT_RATE_HZ, TrajectoryConfig
 from lip_ros.nodes.base import node_defaults
@@ -38,11 +39,12 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults_and_the_contract():
     assert trajectory["hold_s"] == config.hold_s and trajectory["map_after_s"] == config.map_after_s
     assert trajectory["suit_rate_hz"] == body["suit_rate_hz"] == SUIT_RATE_HZ
     assert trajectory["lidar_topic"] == sensors.HIP_LIDAR_TOPIC
-    assert trajectory["suit_odometry_topic"] == sensors.SUIT_ODOMETRY_TOPIC
+    assert trajectory["suit_odometry_topic"] == body["suit_odometry_topic"] == sensors.SUIT_ODOMETRY_TOPIC
     assert trajectory["pelvis_imu_topic"] == sensors.suit_imu_topic("pelvis")
     assert trajectory["odometry_topic"] == body["odometry_topic"] == sensors.ODOMETRY_TOPIC
     assert trajectory["offset_topic"] == body["offset_topic"] == sensors.SUIT_CLOCK_OFFSET_TOPIC
-    assert trajectory["map_topic"] == sensors.MAP_TOPIC
+    assert trajectory["map_topic"] == body["map_topic"] == sensors.MAP_TOPIC
+    assert body["optimise_window"] == SceneOptimisationConfig().window
     assert trajectory["frame_id"] == sensors.MAP_FRAME and trajectory["child_frame_id"] == sensors.PELVIS_FRAME
     assert body["suit_imu_topics"] == [sensors.suit_imu_topic(s) for s in load_skeleton().suit_imus]
     assert round(body["max_imu_gap_s"] * 1e9) == SuitBodyConfig().max_gap_ns

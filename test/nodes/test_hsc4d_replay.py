@@ -15,7 +15,15 @@ from helpers import console_script
 from lip_msgs_py import cloud_to_xyz, msg_to_diagnostics, msg_to_joint_state, msg_to_odometry, msg_to_pose_array
 from lip_ros.bagio import bag_span, bag_topics, read_messages
 from lip_ros.core.skeleton import joint_state_names, load_skeleton
-from lip_ros.hsc4d.sensors import HIP_LIDAR_TOPIC, HSC4D_TOPICS, MAP_FRAME, MAP_TOPIC, ODOMETRY_TOPIC
+from lip_ros.hsc4d.sensors import (
+    HIP_LIDAR_TOPIC,
+    HSC4D_TOPICS,
+    MAP_FRAME,
+    MAP_TOPIC,
+    ODOMETRY_TOPIC,
+    OPTIMISED_ODOMETRY_TOPIC,
+    OPTIMISED_TOPICS,
+)
 from lip_ros.rig.bag import TRUTH_FILE
 from lip_ros.rig.site_bag import write_site_bag
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
@@ -90,3 +98,25 @@ def test_accuracy_and_clock_offset_as_offline(replay):
     assert _number(r"Baseline1 .* ATE ([\d.]+) cm", stdout) > 15.0  # the suit alone drifts: the test can tell
     truth = yaml.safe_load((bag / TRUTH_FILE).read_text())["suit"]["clock_offset_s"] * 1e3
     assert abs(_number(r"offset found from the jump: ([-\d.]+) ms", stdout) - truth) < 20.0
+
+
+def test_the_body_node_optimises_every_frame_with_the_scene(replay):
+    """Each posed frame goes through the scene-aware optimisation, one 100-frame window and then the partial one
+    at the end: the same stamps, a pelvis moved by centimetres, not metres, and the body on it."""
+    bag, out, _ = replay
+    frames_in = bag_topics(bag)[HIP_LIDAR_TOPIC].count
+    fused = {o.stamp_ns: o for o in (msg_to_odometry(m.msg) for m in read_messages(out, [ODOMETRY_TOPIC]))}
+    optimised = [msg_to_odometry(m.msg) for m in read_messages(out, [OPTIMISED_ODOMETRY_TOPIC])]
+    assert [o.stamp_ns for o in optimised] == sorted(fused) and len(optimised) == frames_in
+    assert {o.frame_id for o in optimised} == {MAP_FRAME} and {o.child_frame_id for o in optimised} == {"pelvis"}
+    moved = np.array([np.linalg.norm(o.position - fused[o.stamp_ns].position) for o in optimised])
+    assert np.isfinite(moved).all() and moved.max() < 0.1 and moved.mean() > 1e-4  # it did something, not much
+    poses = [msg_to_pose_array(m.msg) for m in read_messages(out, [OPTIMISED_TOPICS.joint_poses])]
+    assert len(poses) == frames_in
+    assert np.allclose([p.positions[0] for p in poses], [o.position for o in optimised], atol=1e-6)
+    last = {}
+    for m in read_messages(out, ["/diagnostics"]):
+        last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
+    body = last["hsc4d_body_node: frames"].values
+    assert int(body["optimisation: frames optimised"]) == frames_in and int(body["optimisation: frames waiting"]) == 0
+    assert 0.0 < float(body["optimisation: sole height (m)"]) < 0.1

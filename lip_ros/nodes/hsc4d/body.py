@@ -10,31 +10,58 @@ the pose's stamp. The skeleton is the contract's scaled by ``body_scale``;
 with ``body_scale`` 0 it is scaled to the pelvis height of the first fused pose
 (the wearer stands still in A-pose there, and ``map``'s origin is on the ground
 under that pelvis), and the scale is logged and reported.
+
+With ``optimise_window`` > 0 it also runs the scene-aware optimisation
+(:class:`lip_ros.hsc4d.scene_optimisation.SceneOptimiser`): each posed frame
+joins a window, with the feet as the suit alone places them (its segments on
+its own ``/mocap/odometry``: which foot stands); once the window is full it is
+optimised on the latest ``/hsc4d/map`` and published, frame by frame with their
+own stamps, on ``/hsc4d/optimised/odometry`` and ``/hsc4d/optimised/{joint_states,
+root_pose,joint_poses}`` (one window, 10 s at 10 Hz, behind the fused output).
+The first window also measures how high the foot joint stands
+above its sole, which needs the ground under the standing feet in the map;
+the ground the wearer stood on at the start is mapped only once they walked
+away (their own body hides it), so that window may wait for a later map, at
+most one window long. A partial window is optimised once no fused pose has
+come for ``optimise_flush_s`` (the end of a capture). Frames that cannot be
+optimised (no suit odometry near them; no map, or no ground under the first
+window's feet, a window later or at the end) are counted by reason on
+``/diagnostics``.
 """
 
 from __future__ import annotations
 
 import time
 from collections import Counter, deque
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import Imu
+from sensor_msgs.msg import Imu, PointCloud2
 from std_msgs.msg import Int64
 
-from lip_msgs_py import DiagnosticLevel, MalformedMessageError, msg_to_imu, msg_to_odometry, rclpy_message_class
+from lip_msgs_py import (
+    DiagnosticLevel,
+    MalformedMessageError,
+    cloud_to_xyz,
+    msg_to_imu,
+    msg_to_odometry,
+    odometry_to_msg,
+    rclpy_message_class,
+)
 from lip_msgs_py.cdr import cdr_stamp, imu_samples
-from lip_ros.core.rotations import quat_to_matrix
+from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
-from lip_ros.hsc4d.sensors import HSC4D_TOPICS
-from lip_ros.hsc4d.suit_body import SuitBody, SuitBodyConfig
+from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser
+from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
+from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig
 from lip_ros.nodes.base import (
     BETWEEN_NODES,
-    IMU_INPUT,
     LATCHED,
     RELIABLE,
+    SUIT_INPUT,
     GraphNode,
     LatencyWindow,
     Param,
@@ -47,6 +74,10 @@ from lip_ros.nodes.hsc4d.trajectory import TrajectoryNode
 from lip_ros.outputs import pose_messages
 
 __all__ = ["BodyNode", "main"]
+
+_FEET = ("left_foot", "right_foot")
+_POSE_TYPES = (("joint_states", "sensor_msgs/msg/JointState"), ("root_pose", "geometry_msgs/msg/PoseStamped"),
+               ("joint_poses", "geometry_msgs/msg/PoseArray"))
 
 
 def _segment_topics(value: Any) -> str | None:
@@ -73,6 +104,12 @@ class BodyNode(GraphNode):
         "max_waiting_poses": Param("poses that may wait for the suit; the oldest goes on with what there is",
                                    positive),
         "max_imu_gap_s": Param("widest gap between two suit samples interpolated across", positive),
+        "suit_odometry_topic": Param("input: the suit's own nav_msgs/Odometry (which foot stands, for the "
+                                     "optimisation)"),
+        "map_topic": Param("input (latched): the map of hsc4d_trajectory_node (the ground under the feet)"),
+        "optimise_window": Param("frames per scene-aware optimisation window (0: no optimisation)",
+                                 lambda v: None if v == 0 or v >= 3 else f"must be 0 or >= 3, got {v}"),
+        "optimise_flush_s": Param("a partial window is optimised once no fused pose came for this long", positive),
     }
 
     def __init__(self, **kwargs: Any) -> None:
@@ -89,10 +126,25 @@ class BodyNode(GraphNode):
         self._waiting: deque[tuple[int, str, np.ndarray, float]] = deque()  # stamp, frame, T_map_P, received
         self._degraded = 0
         self._latency = LatencyWindow()  # fused pose received -> body published
-        self._out = {topic: self.create_publisher(rclpy_message_class(msgtype), topic, RELIABLE)
-                     for topic, msgtype in ((HSC4D_TOPICS.joint_states, "sensor_msgs/msg/JointState"),
-                                            (HSC4D_TOPICS.root_pose, "geometry_msgs/msg/PoseStamped"),
-                                            (HSC4D_TOPICS.joint_poses, "geometry_msgs/msg/PoseArray"))}
+        self._out = self._pose_publishers(HSC4D_TOPICS)
+        self._optimiser = None
+        if p["optimise_window"]:
+            self._optimiser = SceneOptimiser(replace(SceneOptimisationConfig(), window=p["optimise_window"]))
+            self._window: list[tuple[int, str, BodyPose, np.ndarray]] = []  # the frames in the optimiser
+            self._feet = [self.body.skeleton.index(f) for f in _FEET]
+            self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
+            self._suit_poses: deque[np.ndarray] = deque(maxlen=self.body.config.capacity)
+            self._map: np.ndarray | None = None
+            self._map_failed: np.ndarray | None = None  # the map the first window found no ground under its feet in
+            self._last_pose_at = time.monotonic()
+            self._optimised = 0
+            self._not_optimised: Counter[str] = Counter()
+            self._window_latency = LatencyWindow()  # time per window optimised
+            self._opt_odometry = self.create_publisher(Odometry, OPTIMISED_ODOMETRY_TOPIC, RELIABLE)
+            self._opt_out = self._pose_publishers(OPTIMISED_TOPICS)
+            self.create_subscription(PointCloud2, p["map_topic"], self._on_map, LATCHED, callback_group=self.group)
+            self.add_input("suit odometry", p["suit_odometry_topic"], Odometry, p["suit_rate_hz"],
+                           self._on_suit_odometry, SUIT_INPUT)
         self.create_subscription(Int64, p["offset_topic"], self._on_offset, LATCHED, callback_group=self.group)
         self.add_input("fused odometry", p["odometry_topic"], Odometry, p["lidar_rate_hz"], self._on_odometry,
                        BETWEEN_NODES)
@@ -101,8 +153,100 @@ class BodyNode(GraphNode):
         self._rejected: Counter[str] = Counter()  # suit samples, by reason
         for segment, topic in zip(self.body.segments, p["suit_imu_topics"]):
             self.add_input(f"suit {segment}", topic, Imu, p["suit_rate_hz"],
-                           lambda data, segment=segment: self._on_imu(segment, data), IMU_INPUT, raw=True)
+                           lambda data, segment=segment: self._on_imu(segment, data), SUIT_INPUT, raw=True)
         self.create_timer(0.02, self._drain, self.group, clock=self.steady)
+
+    def _pose_publishers(self, topics: Any) -> dict[str, Any]:
+        """A reliable publisher per pose output of ``topics`` (a PoseTopics)."""
+        return {getattr(topics, name): self.create_publisher(rclpy_message_class(msgtype), getattr(topics, name),
+                                                             RELIABLE) for name, msgtype in _POSE_TYPES}
+
+    def _on_map(self, msg: PointCloud2) -> None:
+        try:
+            self._map = cloud_to_xyz(msg).astype(np.float64)
+        except MalformedMessageError as exc:
+            self.get_logger().warning(f"map not used: {exc}", throttle_duration_sec=5.0)
+            self._not_optimised["optimisation: maps not used, malformed"] += 1
+            return
+        self._optimise()  # a window may be waiting for it
+
+    def _on_suit_odometry(self, msg: Odometry) -> int:
+        odometry = msg_to_odometry(msg)
+        norm = float(np.linalg.norm(odometry.quat))
+        if not (np.isfinite(odometry.position).all() and np.isfinite(norm) and norm > 0.5):
+            raise MalformedMessageError("non-finite position or degenerate quaternion")
+        if self._suit_stamps and odometry.stamp_ns <= self._suit_stamps[-1]:
+            raise MalformedMessageError("not after the last sample")
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat / norm), odometry.position
+        self._suit_stamps.append(odometry.stamp_ns)
+        self._suit_poses.append(T)
+        return odometry.stamp_ns
+
+    def _suit_pose(self, suit_ns: int) -> np.ndarray | None:
+        """The suit's own pelvis pose nearest ``suit_ns`` (within max_imu_gap_s), or None."""
+        if not self._suit_stamps:
+            return None
+        stamps = np.fromiter(self._suit_stamps, dtype=np.int64, count=len(self._suit_stamps))
+        k = int(np.clip(np.searchsorted(stamps, suit_ns), 1, len(stamps) - 1)) if len(stamps) > 1 else 0
+        k = k - 1 if k > 0 and abs(stamps[k - 1] - suit_ns) < abs(stamps[k] - suit_ns) else k
+        return self._suit_poses[k] if abs(stamps[k] - suit_ns) <= self.params["max_imu_gap_s"] * 1e9 else None
+
+    def _optimise_frame(self, stamp_ns: int, frame_id: str, T_map_P: np.ndarray, pose: BodyPose) -> None:
+        """Give one posed frame to the optimiser (with the suit's own feet); optimise a full window."""
+        suit_ns = stamp_ns + self._offset_ns
+        T_suit = self._suit_pose(suit_ns)
+        suit = None if T_suit is None else self.body.pose(suit_ns, T_suit)[0]
+        if suit is None:
+            self._not_optimised["optimisation skipped: no suit odometry near the frame"] += 1
+            return
+        optimiser = self._optimiser
+        if len(optimiser) >= optimiser.capacity:  # the oldest window waited a whole window in vain
+            self._skip(optimiser.config.window, "no map yet" if self._map is None else "no ground under the feet of "
+                       "the first window (no sole height)")
+        optimiser.add(stamp_ns * 1e-9, T_map_P, pose.joints[self._feet], T_suit[:3, 3], suit.joints[self._feet])
+        self._window.append((stamp_ns, frame_id, pose, T_map_P))
+        if optimiser.full:
+            self._optimise()
+
+    def _skip(self, n: int | None, reason: str) -> None:
+        """Drop the oldest ``n`` frames waiting for the optimisation (None: all), counted."""
+        n = self._optimiser.drop(n)
+        del self._window[:n]
+        self._not_optimised[f"optimisation skipped: {reason}"] += n
+        self.get_logger().warning(f"{n} frames not optimised: {reason}")
+
+    def _optimise(self, flush: bool = False) -> None:
+        """Optimise and publish the windows waiting (``flush``: the partial one too). Without a map, or before a
+        map shows the ground under the first window's feet, they wait for a later map (at most a window)."""
+        while self._optimiser.full or (flush and len(self._optimiser)):
+            if self._map is None or self._map is self._map_failed:  # tried this map already
+                return
+            start = time.monotonic()
+            try:
+                result = self._optimiser.optimise(self._map)[0]
+            except ValueError as exc:
+                self._map_failed = self._map
+                self.get_logger().info(f"optimisation waits for a later map: {exc}")
+                return
+            self._window_latency.add(time.monotonic() - start)
+            self._publish_optimised(result.t, result.R)
+
+    def _publish_optimised(self, t: np.ndarray, R: np.ndarray) -> None:
+        """The optimised pelvis (N, 3), (N, 3, 3) of the oldest N frames waiting: the body turned about its pelvis
+        with it."""
+        for k, (stamp_ns, frame_id, pose, T) in enumerate(self._window[: len(t)]):
+            turn = R[k] @ T[:3, :3].T
+            local = pose.local_rot.copy()
+            local[0] = turn @ local[0]
+            joints = t[k] + (pose.joints - T[:3, 3]) @ turn.T
+            self._opt_odometry.publish(odometry_to_msg(self.backend, stamp_ns, frame_id, PELVIS_FRAME, t[k],
+                                                       matrix_to_quat(R[k])))
+            for topic, (_, msg) in pose_messages(self.backend, OPTIMISED_TOPICS, self.body.skeleton, stamp_ns,
+                                                 frame_id, local, turn @ pose.glob_rot, joints).items():
+                self._opt_out[topic].publish(msg)
+        self._optimised += len(t)
+        del self._window[: len(t)]
 
     def _on_offset(self, msg: Int64) -> None:
         self._offset_ns = int(msg.data)
@@ -148,6 +292,12 @@ class BodyNode(GraphNode):
 
     def _drain(self) -> None:
         now = time.monotonic()
+        if (self._optimiser is not None and len(self._optimiser) and not self._waiting
+                and now - self._last_pose_at >= self.params["optimise_flush_s"]):
+            self._optimise(flush=True)
+            if len(self._optimiser):  # no map, or no ground under the first window's feet, by the end
+                self._skip(None, "no map yet" if self._map is None else "no ground under the feet of the first "
+                           "window (no sole height)")
         while self._waiting:
             stamp_ns, _, _, received = self._waiting[0]
             covered = self._offset_ns is not None and self._covered(stamp_ns + self._offset_ns)
@@ -187,6 +337,9 @@ class BodyNode(GraphNode):
             self._out[topic].publish(msg)
         self.count_frame("pose")
         self._latency.add(time.monotonic() - received)
+        if self._optimiser is not None:
+            self._last_pose_at = time.monotonic()
+            self._optimise_frame(stamp_ns, frame_id, T_map_P, pose)
 
     def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
         """Poses published, the body's scale, poses waiting, latencies."""
@@ -194,7 +347,16 @@ class BodyNode(GraphNode):
         return level, "posing" if self.frames["pose"] else "no pose yet", {
             "body scale": f"{self.body.skeleton.scale:.3f}", "poses with held suit data": self._degraded,
             "pending": len(self._waiting), **{f"suit samples rejected: {k}": v for k, v in self._rejected.items()},
-            **self._latency.values("latency_ms")}
+            **self._latency.values("latency_ms"), **self._optimisation_status()}
+
+    def _optimisation_status(self) -> dict[str, Any]:
+        """The optimisation's counts: frames optimised, waiting, not optimised by reason; the sole height; time."""
+        if self._optimiser is None:
+            return {"optimisation": "off"}
+        sole = self._optimiser.sole_m
+        return {"optimisation: frames optimised": self._optimised, "optimisation: frames waiting": len(self._window),
+                "optimisation: sole height (m)": "unknown" if sole is None else f"{sole:.3f}",
+                **dict(self._not_optimised), **self._window_latency.values("optimisation_ms")}
 
 
 def main(argv: list[str] | None = None) -> int:

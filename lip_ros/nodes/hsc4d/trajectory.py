@@ -54,6 +54,7 @@ from lip_ros.nodes.base import (
     IMU_INPUT,
     LATCHED,
     RELIABLE,
+    SUIT_INPUT,
     GraphNode,
     LatencyWindow,
     Param,
@@ -74,9 +75,8 @@ _DROPPED = {"sweeps dropped waiting for the jump": "skipped: held too long (no j
 _RESTART_NS = 1_000_000_000  # a sweep this far before the last one starts the trajectory over
 _MAX_TWIST_DT_S = 0.5  # the twist is left zero across a longer gap between outputs
 #: SensorDataQoS, deep enough for the longest callback (registering a few sweeps while the rest of the process also
-#: wants the interpreter: up to about a second measured) at 10-20 Hz clouds and 100 Hz suit samples
+#: wants the interpreter: up to about a second measured) at 10-20 Hz clouds
 _CLOUD_INPUT = QoSProfile(depth=20, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability)
-_SUIT_INPUT = QoSProfile(depth=200, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability)
 #: with each sweep taken, the backlog (the sweeps held until the jump) is registered for at most this share of a
 #: LiDAR period (the oldest sweep first, the new one behind them): the rest of the period is the live sweep's
 _CATCH_UP_SHARE = 0.5
@@ -146,9 +146,9 @@ class TrajectoryNode(GraphNode):
         self._offset_pub = self.create_publisher(Int64, p["offset_topic"], LATCHED)
         self._tf_pub = tf_publisher(self) if p["publish_tf"] else None
         self.add_input("hip lidar", p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud, _CLOUD_INPUT)
-        self.add_input("suit pelvis imu", p["pelvis_imu_topic"], Imu, p["suit_rate_hz"], self._on_pelvis, _SUIT_INPUT)
+        self.add_input("suit pelvis imu", p["pelvis_imu_topic"], Imu, p["suit_rate_hz"], self._on_pelvis, SUIT_INPUT)
         self.add_input("suit odometry", p["suit_odometry_topic"], Odometry, p["suit_rate_hz"], self._on_suit_odometry,
-                       _SUIT_INPUT)
+                       SUIT_INPUT)
         self.create_timer(0.02, self._drain, self.group, clock=self.steady)
         self.create_timer(p["map_period_s"], self._publish_map, self.group, clock=self.steady)
         self.get_logger().info("ready; waiting for the performer's jump to sync the suit's clock")
