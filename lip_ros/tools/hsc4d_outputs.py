@@ -8,7 +8,8 @@ forgiven). Reported: pelvis ATE, the error at the end, the vertical error off
 the start's level, root-relative MPJPE of ``/hsc4d/joint_poses`` (through the
 same alignment), and Baseline1 (the suit's own ``/mocap/odometry``, moved onto
 the LiDAR's clock by the offset the graph found) through the same alignment
-fitted for it. The ground under the wearer comes from the site rebuilt from
+fitted for it; the same of the body node's scene-aware optimisation
+(``/hsc4d/optimised/*``) when the run has it. The ground under the wearer comes from the site rebuilt from
 the capture's seed. Truth between its 100 Hz samples (``site_truth.npz``) is
 interpolated linearly at each output's stamp.
 """
@@ -24,7 +25,15 @@ import yaml
 from lip_msgs_py import cloud_to_xyz, msg_to_odometry, msg_to_pose_array
 from lip_ros.bagio import read_messages
 from lip_ros.core import metrics
-from lip_ros.hsc4d.sensors import HSC4D_TOPICS, MAP_TOPIC, ODOMETRY_TOPIC, SUIT_ODOMETRY_TOPIC
+from lip_ros.hsc4d.sensors import (
+    HSC4D_TOPICS,
+    MAP_TOPIC,
+    ODOMETRY_TOPIC,
+    OPTIMISED_ODOMETRY_TOPIC,
+    OPTIMISED_TOPICS,
+    SUIT_ODOMETRY_TOPIC,
+)
+from lip_ros.outputs import PoseTopics
 from lip_ros.rig.bag import TRUTH_FILE
 from lip_ros.rig.site_bag import SITE_TRUTH_FILE
 from lip_ros.rig.terrain import Terrain
@@ -47,16 +56,23 @@ class Hsc4dAccuracy:
     suit_ate_m: float | None = None
     suit_final_m: float | None = None
     series: dict[str, np.ndarray] = field(default_factory=dict, repr=False)  # for the plot
+    optimised: Hsc4dAccuracy | None = None  # the same of /hsc4d/optimised/*
 
     def lines(self) -> list[str]:
         """Human-readable report."""
         out = [f"accuracy on {self.matched} poses vs the rig's truth (aligned on the {FIT_S:g} s after the jump's "
-               f"landing): pelvis ATE {100 * self.ate_m:.1f} cm, at the end {100 * self.final_m:.1f} cm, vertical "
-               f"off the start's level {100 * self.vertical_m:.1f} cm, MPJPE {self.mpjpe_mm:.1f} mm"]
+               f"landing): {self._figures()}"]
+        if self.optimised is not None:
+            out.append(f"after the scene-aware optimisation ({self.optimised.matched} poses on "
+                       f"{OPTIMISED_ODOMETRY_TOPIC}): {self.optimised._figures()}")
         if self.suit_ate_m is not None:
             out.append(f"Baseline1 (the suit's own odometry) the same way: ATE {100 * self.suit_ate_m:.1f} cm, at the "
                        f"end {100 * self.suit_final_m:.1f} cm")
         return out
+
+    def _figures(self) -> str:
+        return (f"pelvis ATE {100 * self.ate_m:.1f} cm, at the end {100 * self.final_m:.1f} cm, vertical off the "
+                f"start's level {100 * self.vertical_m:.1f} cm, MPJPE {self.mpjpe_mm:.1f} mm")
 
 
 def _odometry(bag: Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
@@ -76,15 +92,12 @@ def _interp(t: np.ndarray, ts: np.ndarray, values: np.ndarray) -> np.ndarray:
     return out.reshape((len(t),) + values.shape[1:])
 
 
-def hsc4d_accuracy(inputs: Path, outputs: Path, offset_ns: int | None) -> Hsc4dAccuracy | None:
-    """The run's accuracy, or None without the rig's truth files or outputs in its span."""
-    truth_file, sidecar = inputs / SITE_TRUTH_FILE, inputs / TRUTH_FILE
-    if not (truth_file.is_file() and sidecar.is_file()):
-        return None
-    truth = np.load(truth_file)
-    rig = yaml.safe_load(sidecar.read_text(encoding="utf-8"))
+def _accuracy(outputs: Path, odometry_topic: str, topics: PoseTopics, truth: dict[str, np.ndarray], rig: dict
+              ) -> Hsc4dAccuracy | None:
+    """One trajectory's (``odometry_topic``, and its body on ``topics.joint_poses``) accuracy; None if too few
+    poses after the landing."""
     landing = next(p["end_ns"] for p in rig["phases"] if p["name"] == "jump")
-    stamps, pelvis = _odometry(outputs, ODOMETRY_TOPIC)
+    stamps, pelvis = _odometry(outputs, odometry_topic)
     inside = (stamps >= truth["stamp_ns"][0]) & (stamps <= truth["stamp_ns"][-1])
     stamps, pelvis = stamps[inside], pelvis[inside]
     fit = (stamps >= landing) & (stamps <= landing + FIT_S * 1e9)
@@ -98,16 +111,31 @@ def hsc4d_accuracy(inputs: Path, outputs: Path, offset_ns: int | None) -> Hsc4dA
     off_level = np.abs(ground - ground[0]) > LEVEL_M
     dz = aligned[:, 2] - true_pelvis[:, 2]
     joints = {p.stamp_ns: p.positions
-              for p in (msg_to_pose_array(m.msg) for m in read_messages(outputs, [HSC4D_TOPICS.joint_poses]))}
+              for p in (msg_to_pose_array(m.msg) for m in read_messages(outputs, [topics.joint_poses]))}
     have = [k for k, s in enumerate(stamps) if int(s) in joints]
     mpjpe = float("nan")
     if have:
         est = np.array([joints[int(stamps[k])] for k in have]) @ T[:3, :3].T
         true_joints = _interp(stamps[have], truth["stamp_ns"], truth["joints"])
         mpjpe = 1000 * float(metrics.mpjpe(est - est[:, :1], true_joints - true_joints[:, :1]).mean())
-    out = Hsc4dAccuracy(len(stamps), float(np.sqrt(np.mean(err ** 2))), float(err[-1]),
-                        float(np.sqrt(np.mean(dz[off_level] ** 2))) if off_level.any() else float("nan"), mpjpe,
-                        series={"t_s": (stamps - stamps[0]) * 1e-9, "truth": true_pelvis, "live": aligned})
+    return Hsc4dAccuracy(len(stamps), float(np.sqrt(np.mean(err ** 2))), float(err[-1]),
+                         float(np.sqrt(np.mean(dz[off_level] ** 2))) if off_level.any() else float("nan"), mpjpe,
+                         series={"t_s": (stamps - stamps[0]) * 1e-9, "truth": true_pelvis, "live": aligned,
+                                 "stamp_ns": stamps, "fit": fit})
+
+
+def hsc4d_accuracy(inputs: Path, outputs: Path, offset_ns: int | None) -> Hsc4dAccuracy | None:
+    """The run's accuracy, or None without the rig's truth files or outputs in its span."""
+    truth_file, sidecar = inputs / SITE_TRUTH_FILE, inputs / TRUTH_FILE
+    if not (truth_file.is_file() and sidecar.is_file()):
+        return None
+    truth = dict(np.load(truth_file))
+    rig = yaml.safe_load(sidecar.read_text(encoding="utf-8"))
+    out = _accuracy(outputs, ODOMETRY_TOPIC, HSC4D_TOPICS, truth, rig)
+    if out is None:
+        return None
+    out.optimised = _accuracy(outputs, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, truth, rig)
+    stamps, fit, true_pelvis = out.series["stamp_ns"], out.series["fit"], out.series["truth"]
     suit_ns, suit = _odometry(inputs, SUIT_ODOMETRY_TOPIC)
     if offset_ns is not None and len(suit_ns) > 1:
         suit_at = _interp(stamps + offset_ns, suit_ns, suit)
@@ -141,13 +169,15 @@ def plot_hsc4d(outputs: Path, accuracy: Hsc4dAccuracy | None, png: Path) -> Path
     cloud = _last_map(outputs)
     fig, (top, side, view) = plt.subplots(1, 3, figsize=(18, 5.5))
     if accuracy is not None:
-        s = accuracy.series
-        lines = [("truth", s["truth"], "k-"), ("live (fused)", s["live"], "r-")]
-        lines += [("Baseline1 (suit)", s["suit"], "c:")] if "suit" in s else []
-        t, frame = s["t_s"], "site frame (aligned)"
+        s, frame = accuracy.series, "site frame (aligned)"
+        lines = [("truth", s["truth"], "k-", s["t_s"]), ("live (fused)", s["live"], "r-", s["t_s"])]
+        if accuracy.optimised is not None:
+            o = accuracy.optimised.series
+            lines.append(("optimised", o["live"], "m--", o["t_s"] + (o["stamp_ns"][0] - s["stamp_ns"][0]) * 1e-9))
+        lines += [("Baseline1 (suit)", s["suit"], "c:", s["t_s"])] if "suit" in s else []
     else:
-        lines, t, frame = [("live (fused)", pelvis, "r-")], (stamps - stamps[0]) * 1e-9, "map"
-    for label, p, style in lines:
+        lines, frame = [("live (fused)", pelvis, "r-", (stamps - stamps[0]) * 1e-9)], "map"
+    for label, p, style, t in lines:
         top.plot(p[:, 0], p[:, 1], style, lw=1.2, label=label)
         side.plot(t, p[:, 2], style, lw=1.2, label=label)
     top.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title=f"pelvis from above ({frame})")

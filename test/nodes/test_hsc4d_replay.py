@@ -95,6 +95,7 @@ def test_accuracy_and_clock_offset_as_offline(replay):
     bag, _, stdout = replay
     assert _number(r"pelvis ATE ([\d.]+) cm", stdout) < 10.0
     assert _number(r"MPJPE ([\d.]+) mm", stdout) < 20.0
+    assert _number(r"after the scene-aware optimisation .*? pelvis ATE ([\d.]+) cm", stdout) < 10.0
     assert _number(r"Baseline1 .* ATE ([\d.]+) cm", stdout) > 15.0  # the suit alone drifts: the test can tell
     truth = yaml.safe_load((bag / TRUTH_FILE).read_text())["suit"]["clock_offset_s"] * 1e3
     assert abs(_number(r"offset found from the jump: ([-\d.]+) ms", stdout) - truth) < 20.0
