@@ -328,19 +328,33 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, feet: np.ndarray, sui
     live optimiser one window behind would): the fused pelvis poses T_map_P (N, 4, 4) and feet (N, 2, 3) in
     ``map``, the pelvis (N, 3) and the feet (N, 2, 3) as the suit alone places them (any frame: for the step
     lengths and the stance), the map's points when frame ``k`` was the newest (``map_at(k)``, (M, 3) in
-    ``map``), with a :class:`SceneOptimiser`. ``sole_m`` None: measured in the first window (:func:`sole_height`;
-    ValueError if no standing foot has a plane there)."""
+    ``map``), with a :class:`SceneOptimiser`. ``sole_m`` None: measured in the first window (:func:`sole_height`)
+    on the first map that shows the ground under its feet, the window waiting a window for it at most (then it is
+    left as fused); ValueError if none does by the end."""
     optimiser = SceneOptimiser(config, sole_m, seed)
-    window = optimiser.config.window
     out_pelvis, out_feet = pelvis.copy(), feet.copy()
     stance = np.zeros((len(t_s), 2), dtype=bool)
     planes = np.full((len(t_s), 2, 4), np.nan)
     windows: list[WindowResult] = []
-    for start in range(0, len(t_s), window):
-        w = slice(start, min(start + window, len(t_s)))
-        for k in range(w.start, w.stop):
-            optimiser.add(t_s[k], pelvis[k], feet[k], suit_pelvis[k], suit_feet[k])
-        result, stance[w], planes[w] = optimiser.optimise(map_at(w.stop - 1))
-        out_pelvis[w, :3, :3], out_pelvis[w, :3, 3], out_feet[w] = result.R, result.t, result.feet
-        windows.append(result)
+    done = 0  # the first frame not optimised (or skipped) yet
+    for k in range(len(t_s)):
+        optimiser.add(t_s[k], pelvis[k], feet[k], suit_pelvis[k], suit_feet[k])
+        last = k == len(t_s) - 1
+        while optimiser.full or (last and len(optimiser)):
+            try:
+                result, st, pl = optimiser.optimise(map_at(k))
+            except ValueError:
+                if len(optimiser) < optimiser.capacity and not last:
+                    break  # the first window waits for a map with the ground under its feet, as the node's does
+                if optimiser.sole_m is None and last:
+                    raise
+                done += optimiser.drop(optimiser.config.window)  # those frames stay as fused
+                continue
+            w = slice(done, done + len(result.t))
+            out_pelvis[w, :3, :3], out_pelvis[w, :3, 3], out_feet[w] = result.R, result.t, result.feet
+            stance[w], planes[w] = st, pl
+            windows.append(result)
+            done = w.stop
+    if optimiser.sole_m is None:
+        raise ValueError("no standing foot with a ground plane: no sole height")
     return SequenceResult(out_pelvis, out_feet, stance, planes, float(optimiser.sole_m), windows)

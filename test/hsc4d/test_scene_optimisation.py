@@ -175,3 +175,22 @@ def test_the_live_optimiser_takes_frames_one_window_at_a_time(walk):
         waiting.optimise(np.zeros((0, 3)))
     assert len(waiting) == 100 and waiting.optimise(ground)[0].t.shape == (50, 3) and len(waiting) == 50
     assert waiting.drop(10) == 10 and len(waiting) == 40 and waiting.drop() == 40
+
+
+def test_the_first_window_waits_for_a_map_with_the_ground_under_its_feet(walk):
+    """The start's ground is mapped only once the wearer walked away: the batch run, like the node, keeps the first
+    window until a map shows it (at most a window later), else leaves it as fused."""
+    t, pelvis, feet, stance, fused, suit, ground = walk
+    start = fused[:, None] + (feet - pelvis[:, None])
+    config = replace(SceneOptimisationConfig(), window=30)
+
+    def run(ground_from: int):
+        return optimise_sequence(t, _poses(fused), start, suit, feet,
+                                 lambda k: ground if k >= ground_from else ground[:0], config)
+
+    late = run(45)  # the first window waits for frame 59, the second window's last, and both are optimised
+    assert len(late.windows) == 4 and not np.allclose(late.feet[:30], start[:30])
+    too_late = run(75)  # not even a window later: the first window stays as fused, the rest is optimised
+    assert np.allclose(too_late.feet[:30], start[:30]) and not np.allclose(too_late.feet[30:], start[30:])
+    with pytest.raises(ValueError, match="no sole height"):
+        run(len(t))
