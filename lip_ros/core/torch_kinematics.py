@@ -9,7 +9,19 @@ import torch
 
 from lip_ros.core.skeleton import NUM_JOINTS, Skeleton
 
-__all__ = ["six_d_to_matrix", "matrix_to_six_d", "forward_kinematics", "SkeletonTensors"]
+__all__ = ["axis_angle_to_matrix", "six_d_to_matrix", "matrix_to_six_d", "forward_kinematics", "SkeletonTensors"]
+
+
+def axis_angle_to_matrix(v: torch.Tensor) -> torch.Tensor:
+    """(N, 3) axis-angle vectors to (N, 3, 3) rotation matrices (Rodrigues), differentiable at zero."""
+    theta2 = (v * v).sum(-1, keepdim=True)[..., None]
+    theta = torch.sqrt(theta2 + 1e-24)
+    zero = torch.zeros_like(v[:, 0])
+    K = torch.stack([zero, -v[:, 2], v[:, 1], v[:, 2], zero, -v[:, 0], -v[:, 1], v[:, 0], zero], -1).view(-1, 3, 3)
+    small = theta2 < 1e-12
+    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)
+    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / (theta2 + 1e-24))
+    return torch.eye(3, dtype=v.dtype) + a * K + b * (K @ K)
 
 
 def six_d_to_matrix(d6: torch.Tensor) -> torch.Tensor:

@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from lip_ros.core.ground_plane import fit_ground_plane
+from lip_ros.core.torch_kinematics import axis_angle_to_matrix
 
 __all__ = ["SceneOptimisationConfig", "WindowInput", "WindowResult", "TERMS", "stance_from_suit",
            "fit_foot_planes", "optimise_window", "without", "SequenceResult", "sole_height", "SceneOptimiser",
@@ -141,23 +142,11 @@ def fit_foot_planes(feet: np.ndarray, stance: np.ndarray, points: np.ndarray, rn
     return out
 
 
-def _rodrigues(v: torch.Tensor) -> torch.Tensor:
-    """(N, 3, 3) rotation matrices of axis-angle vectors (N, 3), differentiable at zero."""
-    theta2 = (v * v).sum(-1, keepdim=True)[..., None]
-    theta = torch.sqrt(theta2 + 1e-24)
-    zero = torch.zeros_like(v[:, 0])
-    K = torch.stack([zero, -v[:, 2], v[:, 1], v[:, 2], zero, -v[:, 0], -v[:, 1], v[:, 0], zero], -1).view(-1, 3, 3)
-    small = theta2 < 1e-12
-    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)
-    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / (theta2 + 1e-24))
-    return torch.eye(3, dtype=v.dtype) + a * K + b * (K @ K)
-
-
 def _terms(t: torch.Tensor, rot: torch.Tensor, window: WindowInput, sole_m: float, c: SceneOptimisationConfig,
            t0: torch.Tensor, offsets: torch.Tensor, planes: torch.Tensor, stance: torch.Tensor
            ) -> dict[str, torch.Tensor]:
     """Each term's value (unweighted) for translations ``t`` (N, 3) and body turns ``rot`` (axis-angle, N, 3)."""
-    feet = t[:, None, :] + torch.einsum("nab,nkb->nka", _rodrigues(rot), offsets)  # (N, 2, 3)
+    feet = t[:, None, :] + torch.einsum("nab,nkb->nka", axis_angle_to_matrix(rot), offsets)  # (N, 2, 3)
     zero = t.new_zeros(())
     has_plane = stance & torch.isfinite(planes).all(-1)
     if has_plane.any():
@@ -173,7 +162,7 @@ def _terms(t: torch.Tensor, rot: torch.Tensor, window: WindowInput, sole_m: floa
         all_stance = torch.cat([stance[:1], stance])  # the frame before counts as standing as the first does
     both = all_stance[1:] & all_stance[:-1]
     sliding = ((all_feet[1:] - all_feet[:-1])[both] ** 2).sum(-1).mean() if both.any() else zero
-    orientation = (rot**2).sum(-1).mean() + ((rot[1:] - rot[:-1]) ** 2).sum(-1).mean()
+    orientation = (rot**2).sum(-1).mean() + (((rot[1:] - rot[:-1]) ** 2).sum(-1).mean() if len(rot) > 1 else zero)
     steps = torch.linalg.norm(all_t[1:, :2] - all_t[:-1, :2], dim=-1)  # horizontal: the suit knows no heights
     suit = torch.as_tensor(window.suit_steps[-len(steps):], dtype=t.dtype) if len(steps) else steps
     smoothness = ((steps - suit) ** 2).mean() if len(steps) else zero
@@ -213,8 +202,8 @@ def optimise_window(window: WindowInput, sole_m: float, config: SceneOptimisatio
     optimiser.step(closure)
     with torch.no_grad():
         after = {k: float(v) for k, v in evaluate().items()}
-        R_turn = _rodrigues(rot).numpy()
-        feet = (t[:, None, :] + torch.einsum("nab,nkb->nka", _rodrigues(rot), offsets)).numpy()
+        R_turn = axis_angle_to_matrix(rot).numpy()
+        feet = (t[:, None, :] + torch.einsum("nab,nkb->nka", axis_angle_to_matrix(rot), offsets)).numpy()
     return WindowResult(t.detach().numpy().copy(), R_turn @ window.R0, feet, before, after)
 
 

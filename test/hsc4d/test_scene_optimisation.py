@@ -194,3 +194,24 @@ def test_the_first_window_waits_for_a_map_with_the_ground_under_its_feet(walk):
     assert np.allclose(too_late.feet[:30], start[:30]) and not np.allclose(too_late.feet[30:], start[30:])
     with pytest.raises(ValueError, match="no sole height"):
         run(len(t))
+
+
+def test_a_one_frame_window_at_the_end_gives_a_finite_pose(walk):
+    t, pelvis, feet, stance, fused, suit, ground = walk
+    start = fused[:, None] + (feet - pelvis[:, None])
+    optimiser = SceneOptimiser(replace(SceneOptimisationConfig(), window=30), sole_m=SOLE_M)
+    optimiser.add(t[0], _poses(fused)[0], start[0], suit[0], feet[0])
+    result = optimiser.optimise(ground)[0]
+    assert np.isfinite(result.t).all() and np.isfinite(result.R).all()
+
+
+def test_axis_angle_matrices_agree_with_the_numpy_ones():
+    import torch
+
+    from lip_ros.core.rotations import axis_angle_to_matrix as numpy_version
+    from lip_ros.core.torch_kinematics import axis_angle_to_matrix
+
+    v = np.random.default_rng(2).normal(size=(20, 3))
+    v[0] = 0.0
+    v[1] = 1e-8
+    assert np.allclose(axis_angle_to_matrix(torch.as_tensor(v)).numpy(), numpy_version(v), atol=1e-12)
