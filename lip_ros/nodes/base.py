@@ -325,6 +325,12 @@ def _spin_each(nodes: Sequence[Node]) -> list[BaseException]:
             executor.spin()
         except ExternalShutdownException:
             pass
+        except RuntimeError as exc:
+            # a signal that shuts the context down while spin_once builds its wait set makes rclpy raise
+            # RCLError ("the given context is not valid") rather than ExternalShutdownException: a shutdown
+            if executor.context.ok():
+                errors.append(exc)
+                rclpy.try_shutdown()
         except BaseException as exc:  # noqa: BLE001  (reported by the main thread)
             errors.append(exc)
             rclpy.try_shutdown()
