@@ -1,14 +1,22 @@
 """The HSC4D trajectory on rig captures against the truth and the paper's baselines (ROS-free).
 
 :func:`run_capture` plays a :class:`~lip_ros.rig.site_capture.SiteCapture` into
-a :class:`~lip_ros.hsc4d.trajectory.TrajectoryPipeline` in arrival order (each
-sweep once its last column is in, after the suit samples sent before then) and
-collects, per sweep the pipeline output, the pelvis position of
+a :class:`~lip_ros.hsc4d.refinement.CaptureRefiner` (the live
+:class:`~lip_ros.hsc4d.trajectory.TrajectoryPipeline` and the suit's body) in
+arrival order (each sweep once its last column is in, after the suit samples
+sent before then) and collects, per sweep the pipeline output, the pelvis of
 
 * **Baseline1**, the suit alone (its ``/mocap/odometry``),
 * **Baseline2**, the LiDAR odometry alone (the sensor pose through the
   levelled mounting, no fusion),
-* the **live** fused trajectory and the **refined** one (the whole graph),
+* the **live** fused trajectory, and the **live optimised** one: after the
+  scene-aware optimisation (:mod:`~lip_ros.hsc4d.scene_optimisation`) window by
+  window, each on the live odometry's local map as it stood when the window's
+  last sweep came out,
+* the offline refinement (:mod:`~lip_ros.hsc4d.refinement`): the **refined
+  graph** (the whole capture's graph solved at once) and the **refined**
+  trajectory (that graph optimised on the whole site's map), also with each
+  loss term left out in turn (the ablation),
 
 and the truth. :func:`trajectory_metrics` aligns each with yaw and translation
 fitted only on the ``fit_s`` seconds after the jump's landing and kept fixed
@@ -18,17 +26,12 @@ ramps, the terrace) and the error at the end.
 
 The body: the suit's joints (:class:`~lip_ros.hsc4d.suit_body.SuitBody`) on each
 method's pelvis, scaled to the first fused pelvis height as the body node does.
-The **live optimised** trajectory is the live one after the scene-aware
-optimisation (:mod:`~lip_ros.hsc4d.scene_optimisation`) window by window, each
-on the LiDAR map as it stood when the window's last sweep came out; the
-**refined graph** is the whole capture's graph solved at once, and the
-**refined** trajectory is that graph optimised on the final map, also with each
-loss term left out in turn (the ablation). :func:`body_metrics`
-reports, against the truth and under the same alignment, the checkpoint error
-(the foot joint at the middle of each true stance), the foot contact error (a
-standing foot's height above the true surface under it against the truth's),
-foot sliding per frame and the root-relative MPJPE; :func:`map_metrics` the
-live map's distance to the true scene surface.
+:func:`body_metrics` reports, against the truth and under the same alignment,
+the checkpoint error (the foot joint at the middle of each true stance), the
+foot contact error (a standing foot's height above the true surface under it
+against the truth's), foot sliding per frame and the root-relative MPJPE;
+:func:`map_metrics` each map's distance to the true scene surface (the live
+local map, the whole site's from the live trajectory and from the refined one).
 """
 
 from __future__ import annotations
@@ -40,23 +43,25 @@ from dataclasses import dataclass
 import numpy as np
 
 from lip_ros.core.metrics import align_yaw_translation, mpjpe
-from lip_ros.core.rotations import quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
+from lip_ros.hsc4d.refinement import FEET, CaptureRefiner, RefinementConfig
 from lip_ros.hsc4d.scene_optimisation import TERMS, SceneOptimisationConfig, optimise_sequence, without
-from lip_ros.hsc4d.suit_body import SuitBody, SuitBodyConfig
-from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline
+from lip_ros.hsc4d.suit_body import moved_body
+from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.rig.mesh_raycast import MeshRaycaster
 from lip_ros.rig.site_capture import SiteCapture
 from lip_ros.rig.terrain import Terrain
 
-__all__ = ["METHODS", "ABLATIONS", "TrajectoryRun", "run_capture", "aligned", "trajectory_metrics",
+__all__ = ["METHODS", "ABLATIONS", "MAPS", "TrajectoryRun", "run_capture", "aligned", "trajectory_metrics",
            "body_metrics", "map_metrics"]
 
 #: the trajectories compared, in report order
 METHODS = ("baseline1_suit", "baseline2_lidar", "live", "live_optimised", "refined_graph", "refined")
 #: the refinement with one loss term left out, per term
 ABLATIONS = tuple(f"refined_without_{term}" for term in TERMS)
-_FEET = ("left_foot", "right_foot")
+#: the maps measured, each under the alignment of the trajectory that placed it: the live odometry's local map at
+#: the end, the whole site's from the live trajectory (S_live), and from the refined one (S_opt)
+MAPS = {"live": "live", "live_site": "live", "refined": "refined"}
 
 
 @dataclass(frozen=True)
@@ -66,8 +71,9 @@ class TrajectoryRun:
     truth, the true ground height under the true pelvis (N,), which foot truly stands (N, 2), the jump's landing
     (s), the suit clock offset found and the true one (ns), which registrations were not believed (N,), the time
     each sweep took in ``add_sweep`` (ms; the sweeps held until the jump are registered together in the call that
-    finds it, each counted at that call's time over their number), the optimisation's time per window (s), the
-    sole height it measured (m), the pipeline's counters and the live map's points at the end (M, 3) in ``map``."""
+    finds it, each counted at that call's time over their number), the refinement's optimisation time per window
+    (s) and the sole height it measured (m), the pipeline's counters, the maps (M, 3) in ``map`` (:data:`MAPS`) and
+    the wall time of the whole offline refinement (s)."""
 
     seed: int
     t_s: np.ndarray
@@ -85,120 +91,84 @@ class TrajectoryRun:
     window_s: np.ndarray
     sole_m: float
     counts: dict[str, int]
-    live_map: np.ndarray
-
-
-def _suit_pelvis(capture: SiteCapture, suit_ns: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) the suit's own pelvis pose (its ``/mocap/odometry``, nearest sample) at suit-clock times."""
-    odometry = capture.suit_odometry()
-    k = np.clip(np.searchsorted(odometry.stamp_ns, suit_ns), 0, len(odometry.stamp_ns) - 1)
-    out = np.tile(np.eye(4), (len(suit_ns), 1, 1))
-    out[:, :3, :3], out[:, :3, 3] = quat_to_matrix(odometry.quat[k]), odometry.position[k]
-    return out
-
-
-def _bodies(capture: SiteCapture, suit_ns: np.ndarray, poses: dict[str, np.ndarray], height_m: float
-            ) -> dict[str, np.ndarray]:
-    """Joints (N, 24, 3) per method: the suit's segments on each method's pelvis poses (N, 4, 4), the skeleton
-    scaled to ``height_m``."""
-    streams = capture.suit_streams()
-    body = SuitBody(load_skeleton(), SuitBodyConfig(capacity=max(len(s.stamp_ns) for s in streams.values()) + 1))
-    for name, stream in streams.items():
-        body.add(name, list(stream.samples(f"mocap_{name}")))
-    body.scale_to_pelvis_height(height_m)
-    out = {}
-    for name, T in poses.items():
-        joints = []
-        for k, ns in enumerate(suit_ns):
-            pose, why = body.pose(int(ns), T[k])
-            if pose is None:
-                raise RuntimeError(f"no suit pose at {ns} ns: {why}")
-            joints.append(pose.joints)
-        out[name] = np.array(joints)
-    return out
+    maps: dict[str, np.ndarray]
+    refine_s: float
 
 
 def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                 progress: Callable[[int, int], None] | None = None,
                 scene: SceneOptimisationConfig | None = None) -> TrajectoryRun:
-    """Play ``capture`` through a :class:`TrajectoryPipeline` (``progress(k, n)`` after each sweep), pose the
-    body on each method's trajectory and optimise the live and the refined ones with ``scene``."""
+    """Play ``capture`` through a :class:`CaptureRefiner` (``progress(k, n)`` after each sweep), pose the body on
+    each method's trajectory and optimise the live one and refine the capture with ``scene``."""
     scene = scene or SceneOptimisationConfig()
-    pipeline = TrajectoryPipeline(config)
-    pelvis = list(capture.suit_streams()["pelvis"].samples("mocap_pelvis"))
+    refiner = CaptureRefiner(RefinementConfig(trajectory=config or TrajectoryConfig(), scene=scene))
+    pipeline = refiner.pipeline
+    streams = {name: list(s.samples(f"mocap_{name}")) for name, s in capture.suit_streams().items()}
     odometry = capture.suit_odometry()
     true_offset = int(round(capture.suit.clock_offset_s * 1e9))
-    imu_next = odo_next = 0
-    steps, sweep_ms = [], []
+    imu_next = dict.fromkeys(streams, 0)
+    odo_next = 0
+    steps, sweep_ms = 0, []
     maps: list[tuple[int, np.ndarray]] = []  # (the newest step's index, the live map then), once per window
     n = capture.num_frames
     for k, frame in capture.frames():
         arrival = capture.frame_stamp_ns(k) + capture.lidar.period_ns + true_offset  # on the suit's clock
-        while imu_next < len(pelvis) and pelvis[imu_next].stamp_ns <= arrival:
-            pipeline.add_pelvis_imu(pelvis[imu_next])
-            imu_next += 1
+        for name, samples in streams.items():
+            stop = imu_next[name]
+            while stop < len(samples) and samples[stop].stamp_ns <= arrival:
+                stop += 1
+            refiner.add_suit_imu(name, samples[imu_next[name]:stop])
+            imu_next[name] = stop
         while odo_next < len(odometry.stamp_ns) and odometry.stamp_ns[odo_next] <= arrival:
-            pipeline.add_suit_odometry(int(odometry.stamp_ns[odo_next]), odometry.position[odo_next],
-                                       odometry.quat[odo_next])
+            refiner.add_suit_odometry(int(odometry.stamp_ns[odo_next]), odometry.position[odo_next],
+                                      odometry.quat[odo_next])
             odo_next += 1
         p = frame.points.ravel()
         t0 = time.perf_counter()
         out = pipeline.add_sweep(np.stack([p["x"], p["y"], p["z"]], axis=1), frame.stamp_ns + p["t"].astype(np.int64),
                                  frame.stamp_ns)
         ms = 1e3 * (time.perf_counter() - t0)
-        steps += out
+        refiner.keep(out)
+        steps += len(out)
         sweep_ms += [ms / max(len(out), 1)] * len(out)  # the held sweeps share the call that registers them
-        if steps and len(steps) // scene.window > len(maps):
-            maps.append((len(steps) - 1, pipeline.map_points()))
+        if steps and steps // scene.window > len(maps):
+            maps.append((steps - 1, pipeline.map_points()))
         if progress is not None:
             progress(k, n)
     if pipeline.offset_ns is None or not steps:
         raise RuntimeError(f"capture {capture.config.seed}: no trajectory ({pipeline.status})")
-    maps.append((len(steps) - 1, pipeline.map_points()))
-    stamps = np.array([s.stamp_ns for s in steps], dtype=np.int64)
-    t_s = (stamps - capture.epoch_ns) * 1e-9
+    if refiner.counts:
+        raise RuntimeError(f"capture {capture.config.seed}: sweeps not kept: {dict(refiner.counts)}")
+    maps.append((steps - 1, pipeline.map_points()))
+    live = refiner.record
+    t_s = (live.stamps_ns - capture.epoch_ns) * 1e-9
     truth = capture.truth(t_s)
-    refined_ns, refined = pipeline.refine()
-    if not np.array_equal(refined_ns, stamps):
-        raise RuntimeError("the refinement's sweeps are not the live ones (record_s too short for the capture?)")
-    suit_ns = stamps + pipeline.offset_ns
-    T_L_M = pipeline.T_L_M
+    refined = refiner.refine()
     poses = {
-        "baseline1_suit": _suit_pelvis(capture, suit_ns),
-        "baseline2_lidar": np.array([s.lidar @ T_L_M for s in steps]),
-        "live": np.array([s.pelvis for s in steps]),
-        "refined_graph": refined,
+        "baseline1_suit": live.suit_pelvis,
+        "baseline2_lidar": live.lidar @ pipeline.T_L_M,
+        "live": live.pelvis,
+        "refined_graph": refined.graph,
+        "refined": refined.pelvis,
     }
-    joints = _bodies(capture, suit_ns, poses, float(steps[0].pelvis[2, 3]))
-    feet = [load_skeleton().index(f) for f in _FEET]
-
-    def live_map(k: int) -> np.ndarray:
-        return next(points for last, points in maps if last >= k)
-
-    def optimised(name: str, map_at: Callable[[int], np.ndarray], config: SceneOptimisationConfig,
-                  sole_m: float | None) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-        """Method ``name`` optimised: its poses, joints, the sole height and the time per window (s)."""
-        t0 = time.perf_counter()
-        suit = "baseline1_suit"
-        result = optimise_sequence(t_s, poses[name], joints[name][:, feet], poses[suit][:, :3, 3],
-                                   joints[suit][:, feet], map_at, config, sole_m)
-        window_s = np.full(len(result.windows), (time.perf_counter() - t0) / len(result.windows))
-        start = poses[name][:, :3, 3]
-        turn = result.pelvis[:, :3, :3] @ np.swapaxes(poses[name][:, :3, :3], 1, 2)
-        body = result.pelvis[:, None, :3, 3] + np.einsum("nab,njb->nja", turn, joints[name] - start[:, None])
-        return result.pelvis, body, result.sole_m, window_s
-
-    poses["live_optimised"], joints["live_optimised"], sole, window_s = optimised("live", live_map, scene, None)
-    final_map = maps[-1][1]
-    poses["refined"], joints["refined"], _, _ = optimised("refined_graph", lambda k: final_map, scene, sole)
+    joints = {name: moved_body(live.body, live.pelvis, T).joints for name, T in poses.items()}
+    joints["baseline1_suit"], joints["refined"] = live.suit_joints, refined.body.joints
+    feet = [load_skeleton().index(f) for f in FEET]
+    result = optimise_sequence(t_s, live.pelvis, live.body.joints[:, feet], live.suit_pelvis[:, :3, 3],
+                               live.suit_joints[:, feet], lambda k: next(m for last, m in maps if last >= k), scene)
+    poses["live_optimised"] = result.pelvis
+    joints["live_optimised"] = moved_body(live.body, live.pelvis, result.pelvis).joints
     for term, name in zip(TERMS, ABLATIONS, strict=True):
-        poses[name], joints[name], _, _ = optimised("refined_graph", lambda k: final_map, without(scene, term), sole)
+        ablated = refiner.refine(without(scene, term), refined.sole_m)
+        poses[name], joints[name] = ablated.pelvis, ablated.body.joints
     jump = next(end for name, _, end in capture.phases_ns() if name == "jump")
     return TrajectoryRun(capture.config.seed, t_s, {k: v[:, :3, 3] for k, v in poses.items()}, joints,
                          truth.pelvis, truth.joints, capture.terrain.surface_height(truth.pelvis[:, :2]),
                          truth.contacts.stance, (jump - capture.epoch_ns) * 1e-9, int(pipeline.offset_ns),
-                         true_offset, np.array([bool(s.rejected) for s in steps]), np.array(sweep_ms), window_s,
-                         sole, dict(pipeline.counts), final_map)
+                         true_offset, np.array([bool(r) for r in live.rejected]), np.array(sweep_ms),
+                         refined.window_s, refined.sole_m, dict(pipeline.counts),
+                         {"live": maps[-1][1], "live_site": refined.live_map, "refined": refined.map},
+                         refined.seconds)
 
 
 def _fit_window(run: TrajectoryRun, fit_s: float) -> np.ndarray:
@@ -249,7 +219,7 @@ def body_metrics(run: TrajectoryRun, terrain: Terrain, fit_s: float = 5.0) -> di
     stance), ``contact_m`` (mean absolute difference of a truly standing foot joint's height above the true
     surface under it from the truth's), ``sliding_m`` (mean motion of a truly standing foot joint from one frame
     to the next, while it stands in both) and ``mpjpe_mm`` (root-relative)."""
-    feet = [load_skeleton().index(f) for f in _FEET]
+    feet = [load_skeleton().index(f) for f in FEET]
     after = run.t_s >= run.landing_s
     stance = run.true_stance & after[:, None]
     checkpoints = []
@@ -277,14 +247,24 @@ def body_metrics(run: TrajectoryRun, terrain: Terrain, fit_s: float = 5.0) -> di
     return out
 
 
-def map_metrics(run: TrajectoryRun, terrain: Terrain, fit_s: float = 5.0, max_m: float = 1.0) -> dict[str, float]:
-    """The live map at the end against the true scene, under the live trajectory's alignment: the median and 90th
-    percentile distance of its points to the scene's surface (m; :meth:`MeshRaycaster.surface_distance`, at most
-    7 % high) and the fraction farther than ``max_m`` (or seen nowhere near a surface)."""
-    T = _alignment(run, "live", fit_s)
-    points = run.live_map @ T[:3, :3].T + T[:3, 3]
-    d = MeshRaycaster(terrain.triangles()).surface_distance(points, max_range=max_m)
-    near = d[np.isfinite(d)]
-    return {"map_median_m": float(np.median(near)) if near.size else float("nan"),
-            "map_p90_m": float(np.percentile(near, 90)) if near.size else float("nan"),
-            "map_far_fraction": float(1.0 - near.size / max(len(d), 1)), "map_points": int(len(d))}
+def map_metrics(run: TrajectoryRun, terrain: Terrain, fit_s: float = 5.0, max_m: float = 1.0,
+                max_points: int = 200_000) -> dict[str, dict[str, float]]:
+    """Per map of :data:`MAPS`, against the true scene under the alignment of the trajectory that placed it: the
+    median and 90th percentile distance of its points (at most ``max_points`` of them, drawn at random) to the
+    scene's surface (m; :meth:`MeshRaycaster.surface_distance`, at most 7 % high), the fraction farther than
+    ``max_m`` (or seen nowhere near a surface) and the number of points."""
+    raycaster = MeshRaycaster(terrain.triangles())
+    rng = np.random.default_rng(run.seed)
+    out = {}
+    for name, method in MAPS.items():
+        T = _alignment(run, method, fit_s)
+        points = run.maps[name]
+        if len(points) > max_points:
+            points = points[rng.choice(len(points), max_points, replace=False)]
+        d = raycaster.surface_distance(points.astype(np.float64) @ T[:3, :3].T + T[:3, 3], max_range=max_m)
+        near = d[np.isfinite(d)]
+        out[name] = {"map_median_m": float(np.median(near)) if near.size else float("nan"),
+                     "map_p90_m": float(np.percentile(near, 90)) if near.size else float("nan"),
+                     "map_far_fraction": float(1.0 - near.size / max(len(d), 1)),
+                     "map_points": int(len(run.maps[name]))}
+    return out

@@ -6,9 +6,11 @@ pelvis in ``map`` as the suit's joint rotations put it, which foot stands (from 
 :func:`stance_from_suit`) and the LiDAR map's points, :func:`optimise_window` moves the pelvis translation and
 turns the whole body about the pelvis (a small rotation per frame) to minimise
 
-* **contact**: each standing foot's distance above the ground plane under it, less the sole's height (the
-  ground: a plane fitted by RANSAC to the map's points within ``radius_m`` of the foot, per stance, since the
-  point cloud has holes; the foot joint stands ``sole_m`` above its sole, measured on the still start);
+* **contact**: each stance's mean height of the foot above the ground plane under it, less the sole's height (the
+  ground: a plane fitted by RANSAC to the map's points within ``radius_m`` of the foot and from ``below_m`` under
+  it to ``above_m`` over it, per stance, since the point cloud has holes; the band keeps the next tread of a
+  stair out; the foot joint stands ``sole_m`` above its sole, measured on the still start; the mean over a
+  stance, since the joint rises and falls as the foot rolls);
 * **sliding**: a standing foot's motion from one frame to the next, while it stands in both;
 * **orientation**: the body's turn away from the fused rotation (the landmarks; the suit's rotation) and its
   change from frame to frame (as smooth as the suit's);
@@ -48,8 +50,8 @@ class SceneOptimisationConfig:
 
     window: int = 100  # frames per optimisation window
     radius_m: float = 0.6  # map points within this horizontal distance of a standing foot give its ground plane
-    above_m: float = 0.3  # ... from this far above the foot joint
-    below_m: float = 0.5  # ... to this far below it
+    above_m: float = 0.05  # ... from this far above the foot joint (a riser is 10-18 cm: the next tread is out)
+    below_m: float = 0.2  # ... to this far below it (the sole is a few cm; the tread below is out)
     plane_tolerance_m: float = 0.03  # RANSAC inlier distance
     plane_max_tilt_deg: float = 20.0  # steeper is not ground (ramps are up to 12 deg)
     plane_min_points: int = 8
@@ -143,16 +145,19 @@ def fit_foot_planes(feet: np.ndarray, stance: np.ndarray, points: np.ndarray, rn
 
 
 def _terms(t: torch.Tensor, rot: torch.Tensor, window: WindowInput, sole_m: float, c: SceneOptimisationConfig,
-           t0: torch.Tensor, offsets: torch.Tensor, planes: torch.Tensor, stance: torch.Tensor
+           t0: torch.Tensor, offsets: torch.Tensor, planes: torch.Tensor, stance: torch.Tensor, runs: torch.Tensor
            ) -> dict[str, torch.Tensor]:
     """Each term's value (unweighted) for translations ``t`` (N, 3) and body turns ``rot`` (axis-angle, N, 3)."""
     feet = t[:, None, :] + torch.einsum("nab,nkb->nka", axis_angle_to_matrix(rot), offsets)  # (N, 2, 3)
     zero = t.new_zeros(())
-    has_plane = stance & torch.isfinite(planes).all(-1)
+    has_plane = runs >= 0
     if has_plane.any():
         p = planes[has_plane]
         height = (p[:, :3] * feet[has_plane]).sum(-1) + p[:, 3] - sole_m
-        contact = torch.nn.functional.huber_loss(height, torch.zeros_like(height), delta=c.contact_huber_m)
+        ids = runs[has_plane]
+        count = torch.zeros(int(ids.max()) + 1, dtype=t.dtype).index_add_(0, ids, torch.ones_like(height))
+        mean = torch.zeros_like(count).index_add_(0, ids, height)[count > 0] / count[count > 0]
+        contact = torch.nn.functional.huber_loss(mean, torch.zeros_like(mean), delta=c.contact_huber_m)
     else:
         contact = zero
     all_t, all_feet, all_stance = t, feet, stance
@@ -171,6 +176,19 @@ def _terms(t: torch.Tensor, rot: torch.Tensor, window: WindowInput, sole_m: floa
             "prior": prior}
 
 
+def stance_runs(stance: np.ndarray) -> np.ndarray:
+    """(N, 2) int64: which run of consecutive standing frames of the same foot each frame is in (numbered from 0
+    across both feet), -1 where the foot does not stand."""
+    out = np.full(stance.shape, -1, dtype=np.int64)
+    n = 0
+    for foot in range(stance.shape[1]):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], stance[:, foot].astype(np.int8), [0]])))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            out[start:stop, foot] = n
+            n += 1
+    return out
+
+
 def optimise_window(window: WindowInput, sole_m: float, config: SceneOptimisationConfig | None = None
                     ) -> WindowResult:
     """Optimise one window (module docstring); ``sole_m``: how far the foot joint stands above its sole."""
@@ -180,12 +198,13 @@ def optimise_window(window: WindowInput, sole_m: float, config: SceneOptimisatio
     offsets = torch.as_tensor(window.offsets, dtype=dtype)
     planes = torch.as_tensor(window.planes, dtype=dtype)
     stance = torch.as_tensor(window.stance, dtype=torch.bool)
+    runs = torch.as_tensor(stance_runs(window.stance & np.isfinite(window.planes).all(-1)))
     t = t0.clone().requires_grad_(True)
     rot = torch.zeros_like(t0).requires_grad_(True)
     weights = {name: getattr(c, name) for name in TERMS}
 
     def evaluate() -> dict[str, torch.Tensor]:
-        return _terms(t, rot, window, sole_m, c, t0, offsets, planes, stance)
+        return _terms(t, rot, window, sole_m, c, t0, offsets, planes, stance, runs)
 
     with torch.no_grad():
         before = {k: float(v) for k, v in evaluate().items()}

@@ -26,7 +26,7 @@ from lip_ros.core.imu_sync import FrameStatus, ImuSampleLike, ImuSynchronizer, S
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, quat_to_matrix
 from lip_ros.core.skeleton import NUM_JOINTS, Skeleton, forward_kinematics
 
-__all__ = ["SuitBodyConfig", "BodyPose", "SuitBody", "unmeasured_chains"]
+__all__ = ["SuitBodyConfig", "BodyPose", "SuitBody", "unmeasured_chains", "moved_body"]
 
 
 @dataclass(frozen=True)
@@ -53,6 +53,17 @@ class BodyPose:
     local_rot: np.ndarray
     glob_rot: np.ndarray
     joints: np.ndarray
+
+
+def moved_body(pose: BodyPose, T_from: np.ndarray, T_to: np.ndarray) -> BodyPose:
+    """The body posed on the pelvis pose ``T_from`` (4, 4) carried rigidly onto ``T_to`` (the suit's segments
+    reach ``map`` through the pelvis pose alone, so this is the body :meth:`SuitBody.pose` gives on ``T_to``); any
+    leading dimensions (N frames: ``pose``'s arrays (N, 24, ...), the poses (N, 4, 4))."""
+    turn = T_to[..., :3, :3] @ np.swapaxes(T_from[..., :3, :3], -1, -2)
+    local = pose.local_rot.copy()
+    local[..., 0, :, :] = turn @ local[..., 0, :, :]
+    joints = T_to[..., None, :3, 3] + np.einsum("...ab,...jb->...ja", turn, pose.joints - T_from[..., None, :3, 3])
+    return BodyPose(local, turn[..., None, :, :] @ pose.glob_rot, joints)
 
 
 def unmeasured_chains(skeleton: Skeleton, measured: set[int]) -> list[tuple[int, list[int]]]:
@@ -84,7 +95,7 @@ class SuitBody:
         self._joint = np.array([skeleton.index(skeleton.suit_imus[s]) for s in self.segments])
         if skeleton.index("pelvis") not in self._joint:
             raise ValueError("the suit has no pelvis sensor")
-        self._pelvis = self.segments[list(self._joint).index(skeleton.index("pelvis"))]
+        self.pelvis_segment = self.segments[list(self._joint).index(skeleton.index("pelvis"))]
         measured = set(int(j) for j in self._joint)
         self._chains = unmeasured_chains(skeleton, measured)
         self.sync = ImuSynchronizer(self.segments, SyncConfig(capacity=c.capacity, max_gap_ns=c.max_gap_ns,
@@ -115,7 +126,7 @@ class SuitBody:
         if result.frame_status == FrameStatus.SKIP:
             return None, result.reason
         R_I = quat_to_matrix(result.quat)  # (17, 3, 3)
-        R_map_I = T_map_P[:3, :3] @ R_I[self.segments.index(self._pelvis)].T
+        R_map_I = T_map_P[:3, :3] @ R_I[self.segments.index(self.pelvis_segment)].T
         glob = np.full((NUM_JOINTS, 3, 3), np.nan)
         glob[self._joint] = R_map_I @ R_I
         parents = self.skeleton.parents

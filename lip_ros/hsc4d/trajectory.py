@@ -85,8 +85,9 @@ class TrajectoryConfig:
 class TrajectoryStep:
     """One sweep's output: its reference time (LiDAR clock), the fused pelvis pose T_map_P and the odometry's
     sensor pose T_map_L (4, 4) each, why the registration was not believed ("" if it was), how far it moved the
-    initial guess (m), how many points it registered, and the stamp the sweep was given to
-    :meth:`TrajectoryPipeline.add_sweep` with."""
+    initial guess (m), how many points it registered, the stamp the sweep was given to
+    :meth:`TrajectoryPipeline.add_sweep` with, and its points deskewed to the reference time in L (M, 3), the
+    wearer's removed."""
 
     stamp_ns: int
     pelvis: np.ndarray
@@ -95,6 +96,7 @@ class TrajectoryStep:
     correction_m: float
     source_points: int
     sweep_ns: int
+    points: np.ndarray
 
 
 class StrideScale:
@@ -133,6 +135,7 @@ class _Registered:
     correction_m: float
     source_points: int
     sweep_ns: int
+    points: np.ndarray
 
 
 class TrajectoryPipeline:
@@ -293,7 +296,7 @@ class TrajectoryPipeline:
         self._between.append(between)
         fused = self.graph.add(ref, landmark, between)
         self._pending.append(_Registered(ref, step.pose, fused, step.rejected, step.correction_m,
-                                         step.source_points, stamp_ns))
+                                         step.source_points, stamp_ns, step.points))
         if self._first is None:
             self._first = self._pending[0]
         if self.map_frame is None and not self._fix_map_frame(ref):
@@ -303,7 +306,7 @@ class TrajectoryPipeline:
             return []
         T = self.map_frame.T_map_O
         out = [TrajectoryStep(r.stamp_ns, T @ r.fused_T_O_P, T @ r.T_O_L, r.rejected, r.correction_m,
-                              r.source_points, r.sweep_ns) for r in self._pending]
+                              r.source_points, r.sweep_ns, r.points) for r in self._pending]
         self._pending.clear()
         return out
 

@@ -15,6 +15,7 @@ from lip_ros.hsc4d.scene_optimisation import (
     optimise_sequence,
     sole_height,
     stance_from_suit,
+    stance_runs,
     without,
 )
 
@@ -215,3 +216,10 @@ def test_axis_angle_matrices_agree_with_the_numpy_ones():
     v[0] = 0.0
     v[1] = 1e-8
     assert np.allclose(axis_angle_to_matrix(torch.as_tensor(v)).numpy(), numpy_version(v), atol=1e-12)
+
+
+def test_each_run_of_standing_frames_is_one_stance_for_the_contact_term():
+    """The contact term holds each stance's mean height on its plane (the foot joint rises and falls as the foot
+    rolls within one): runs numbered across both feet, -1 where a foot does not stand."""
+    stance = np.array([[1, 0], [1, 0], [0, 1], [1, 1], [1, 0]], dtype=bool)
+    assert stance_runs(stance).tolist() == [[0, -1], [0, -1], [-1, 2], [1, 2], [1, -1]]

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from lip_msgs_py import imu_sample
-from lip_ros.core.rotations import geodesic_angle, matrix_to_quat, rot_z
+from lip_ros.core.rotations import geodesic_angle, matrix_to_quat, rot_x, rot_z
 from lip_ros.core.skeleton import load_skeleton
-from lip_ros.hsc4d.suit_body import SuitBody, SuitBodyConfig, unmeasured_chains
+from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body, unmeasured_chains
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 
@@ -98,3 +98,21 @@ def test_missing_or_bad_suit_data_gives_no_pose_and_says_why():
     assert pose is not None and reason == "" and np.isfinite(pose.joints).all()
     pose, reason = body.pose(2_000_000_000, np.eye(4))  # long after the last sample
     assert pose is None and reason
+
+
+def test_a_body_moved_to_another_pelvis_pose_is_the_body_posed_there(capture):
+    """moved_body (the optimised and refined bodies) gives what posing on the new pelvis pose gives, one frame or
+    many at once."""
+    body = _fed(capture, 1.0)
+    ns = capture.epoch_ns + 8 * 10**9 + int(round(capture.suit.clock_offset_s * 1e9))
+    T_from, T_to = np.eye(4), np.eye(4)
+    T_from[:3, :3], T_from[:3, 3] = rot_z(0.3), [1.0, 2.0, 0.9]
+    T_to[:3, :3], T_to[:3, 3] = rot_z(0.5) @ rot_x(0.05), [1.2, 1.9, 1.0]
+    posed, _ = body.pose(ns, T_from)
+    there, _ = body.pose(ns, T_to)
+    moved = moved_body(posed, T_from, T_to)
+    for a, b in ((moved.local_rot, there.local_rot), (moved.glob_rot, there.glob_rot), (moved.joints, there.joints)):
+        assert np.allclose(a, b, atol=1e-9)
+    stacked = BodyPose(*(np.stack([getattr(posed, f)] * 2) for f in ("local_rot", "glob_rot", "joints")))
+    both = moved_body(stacked, np.stack([T_from, T_from]), np.stack([T_to, T_from]))
+    assert np.allclose(both.joints[0], there.joints) and np.allclose(both.joints[1], posed.joints)

@@ -109,7 +109,11 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
     assert body["baseline1_suit"]["contact_m"] > 2.0 * body["refined"]["contact_m"]
     assert 0.0 < run.sole_m < 0.1 and len(run.window_s) >= 2
     scene = map_metrics(run, capture.terrain)
-    assert scene["map_median_m"] < 0.05 and scene["map_p90_m"] < 0.2 and scene["map_far_fraction"] < 0.05
+    for name in ("live", "live_site", "refined"):
+        m = scene[name]
+        assert m["map_median_m"] < 0.05 and m["map_p90_m"] < 0.2 and m["map_far_fraction"] < 0.05, (name, m)
+    assert scene["live_site"]["map_points"] > scene["live"]["map_points"]  # the whole site, not the local map
+    assert 0.0 < run.refine_s < run.t_s[-1] - run.t_s[0]  # faster than the capture
 
 
 def test_without_a_jump_the_pipeline_holds_a_bounded_number_of_sweeps_and_says_why():

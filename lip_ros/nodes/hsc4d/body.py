@@ -56,7 +56,7 @@ from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
-from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig
+from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body
 from lip_ros.nodes.base import (
     BETWEEN_NODES,
     LATCHED,
@@ -236,14 +236,13 @@ class BodyNode(GraphNode):
         """The optimised pelvis (N, 3), (N, 3, 3) of the oldest N frames waiting: the body turned about its pelvis
         with it."""
         for k, (stamp_ns, frame_id, pose, T) in enumerate(self._window[: len(t)]):
-            turn = R[k] @ T[:3, :3].T
-            local = pose.local_rot.copy()
-            local[0] = turn @ local[0]
-            joints = t[k] + (pose.joints - T[:3, 3]) @ turn.T
+            T_opt = np.eye(4)
+            T_opt[:3, :3], T_opt[:3, 3] = R[k], t[k]
+            moved = moved_body(pose, T, T_opt)
             self._opt_odometry.publish(odometry_to_msg(self.backend, stamp_ns, frame_id, PELVIS_FRAME, t[k],
                                                        matrix_to_quat(R[k])))
             for topic, (_, msg) in pose_messages(self.backend, OPTIMISED_TOPICS, self.body.skeleton, stamp_ns,
-                                                 frame_id, local, turn @ pose.glob_rot, joints).items():
+                                                 frame_id, moved.local_rot, moved.glob_rot, moved.joints).items():
                 self._opt_out[topic].publish(msg)
         self._optimised += len(t)
         del self._window[: len(t)]

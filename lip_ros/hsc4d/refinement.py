@@ -1,0 +1,192 @@
+"""The offline refinement of a whole HSC4D capture (ROS-free): the whole pose graph at once, the scene-aware
+optimisation over the map of the whole site, and the map rebuilt from the refined trajectory (the paper's S_opt).
+
+:class:`CaptureRefiner` takes a capture's inputs in the order they arrive, as
+the live graph does: the suit's segments (the pelvis's also drives the
+trajectory), the suit's own odometry and the hip LiDAR's sweeps into a
+:class:`~lip_ros.hsc4d.trajectory.TrajectoryPipeline`. Of each live output it
+keeps what the refinement needs (:class:`LiveRecord`): the body posed on the
+fused pelvis, the suit's own pelvis and body (which foot stands, the suit's
+steps), and the sweep's points in a :class:`~lip_ros.hsc4d.site_map.SiteMap`
+(the whole site, placed by the live trajectory: S_live). :meth:`CaptureRefiner.refine`
+then
+
+1. solves the whole capture's graph at once (:meth:`TrajectoryPipeline.refine`);
+2. optimises it window by window with the scene
+   (:func:`~lip_ros.hsc4d.scene_optimisation.optimise_sequence`) on S_live;
+3. rebuilds the map from the refined trajectory (S_opt: each point moved by the
+   correction of the sweep that placed it, :meth:`SiteMap.moved`).
+
+Memory: about 4 KB per sweep (the bodies) and 20 B per map point, for the
+whole capture (``TrajectoryConfig.record_s`` bounds the graph's record).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lip_ros.core.imu_sync import ImuSampleLike
+from lip_ros.core.skeleton import load_skeleton
+from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, optimise_sequence
+from lip_ros.hsc4d.site_map import SiteMap, SiteMapConfig
+from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body
+from lip_ros.hsc4d.trajectory import SUIT_RATE_HZ, TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
+
+__all__ = ["RefinementConfig", "LiveRecord", "Refinement", "CaptureRefiner", "FEET"]
+
+#: the joints the scene-aware optimisation places on the ground
+FEET = ("left_foot", "right_foot")
+
+
+@dataclass(frozen=True)
+class RefinementConfig:
+    """The live trajectory's, the optimisation's and the site map's settings."""
+
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    scene: SceneOptimisationConfig = field(default_factory=SceneOptimisationConfig)
+    site_map: SiteMapConfig = field(default_factory=SiteMapConfig)
+
+
+@dataclass(frozen=True)
+class LiveRecord:
+    """The live outputs kept for the refinement, per sweep posed (N): reference times (LiDAR clock), the fused
+    pelvis T_map_P and the odometry's sensor pose T_map_L (N, 4, 4), why a registration was not believed (N,),
+    the body on the fused pelvis, the suit's own pelvis pose (in its world) and its body on it."""
+
+    stamps_ns: np.ndarray
+    pelvis: np.ndarray
+    lidar: np.ndarray
+    rejected: np.ndarray
+    body: BodyPose
+    suit_pelvis: np.ndarray
+    suit_joints: np.ndarray
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """The refined capture at the live sweeps' times (N,): the whole graph's pelvis T_map_P (N, 4, 4), that after
+    the scene-aware optimisation, the body on it, the whole-site map from the live trajectory (S_live) and from
+    the refined one (S_opt) (M, 3) in ``map``, the sole height used (m), the time per optimisation window and
+    for the whole refinement (s)."""
+
+    stamps_ns: np.ndarray
+    graph: np.ndarray
+    pelvis: np.ndarray
+    body: BodyPose
+    live_map: np.ndarray
+    map: np.ndarray
+    sole_m: float
+    window_s: np.ndarray
+    seconds: float
+
+
+def _stack(poses: list[BodyPose]) -> BodyPose:
+    return BodyPose(*(np.array([getattr(p, f) for p in poses]) for f in ("local_rot", "glob_rot", "joints")))
+
+
+class CaptureRefiner:
+    """Plays a capture into the live trajectory and keeps what its offline refinement needs."""
+
+    def __init__(self, config: RefinementConfig | None = None) -> None:
+        c = self.config = config or RefinementConfig()
+        self.pipeline = TrajectoryPipeline(c.trajectory)
+        t = c.trajectory
+        self.body = SuitBody(load_skeleton(), SuitBodyConfig(
+            capacity=int((t.hold_s + t.jump.max_offset_s + 5.0) * SUIT_RATE_HZ)))
+        self.site = SiteMap(c.site_map)
+        self.counts: Counter[str] = Counter()  #: frames not kept for the refinement, by reason
+        self._feet = [self.body.skeleton.index(f) for f in FEET]
+        self._steps: list[TrajectoryStep] = []
+        self._bodies: list[BodyPose] = []
+        self._suit: list[tuple[np.ndarray, np.ndarray]] = []  # the suit's pelvis pose and joints
+        self._scaled = False
+
+    def add_suit_imu(self, segment: str, samples: list[ImuSampleLike]) -> list[str | None]:
+        """Samples of one suit segment (suit clock, in time order); the pelvis's also go to the trajectory. For
+        each, why it was rejected (None if kept)."""
+        if segment == self.body.pelvis_segment:
+            for sample in samples:
+                self.pipeline.add_pelvis_imu(sample)
+        return self.body.add(segment, samples)
+
+    def add_suit_odometry(self, stamp_ns: int, position: np.ndarray, quat: np.ndarray) -> str | None:
+        """One sample of the suit's own odometry (suit clock); why it was rejected, None if kept."""
+        return self.pipeline.add_suit_odometry(stamp_ns, position, quat)
+
+    def add_sweep(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> list[TrajectoryStep]:
+        """One sweep (:meth:`TrajectoryPipeline.add_sweep`); the live steps that became ready, each kept."""
+        steps = self.pipeline.add_sweep(points, point_ns, stamp_ns)
+        self.keep(steps)
+        return steps
+
+    def keep(self, steps: list[TrajectoryStep]) -> None:
+        """Keep live steps of :attr:`pipeline` (:meth:`add_sweep` does): the body on each, the suit's own, and its
+        points in the site map; or why not (counted)."""
+        for step in steps:
+            self._keep(step)
+
+    def _keep(self, step: TrajectoryStep) -> None:
+        if not self._scaled:  # the wearer stands still in A-pose at the first step, map's origin under them
+            self.body.scale_to_pelvis_height(float(step.pelvis[2, 3]))
+            self._scaled = True
+        suit_ns = step.stamp_ns + self.pipeline.offset_ns
+        T_suit = self.pipeline.suit.pelvis(step.stamp_ns)
+        body, why = self.body.pose(suit_ns, step.pelvis)
+        suit = None if T_suit is None or body is None else self.body.pose(suit_ns, T_suit)[0]
+        if suit is None:
+            self.counts[f"not refined: {why or 'no suit odometry near the sweep'}"] += 1
+            return
+        self.site.add(step.points, step.lidar, len(self._steps))
+        self._steps.append(step)
+        self._bodies.append(body)
+        self._suit.append((T_suit, suit.joints))
+
+    @property
+    def record(self) -> LiveRecord:
+        """The live outputs kept so far."""
+        steps = self._steps
+        return LiveRecord(np.array([s.stamp_ns for s in steps], dtype=np.int64),
+                          np.array([s.pelvis for s in steps]).reshape(-1, 4, 4),
+                          np.array([s.lidar for s in steps]).reshape(-1, 4, 4),
+                          np.array([s.rejected for s in steps], dtype=object), _stack(self._bodies),
+                          np.array([s[0] for s in self._suit]).reshape(-1, 4, 4),
+                          np.array([s[1] for s in self._suit]))
+
+    def refine(self, scene: SceneOptimisationConfig | None = None, sole_m: float | None = None) -> Refinement:
+        """The offline refinement of everything kept (module docstring), the scene-aware optimisation with
+        ``scene`` (default: the configuration's) and ``sole_m`` (None: measured in its first window); ValueError
+        before any sweep was posed."""
+        start = time.perf_counter()
+        live = self.record
+        if not len(live.stamps_ns):
+            raise ValueError(f"nothing to refine: {self.pipeline.status}")
+        all_ns, all_graph = self.pipeline.refine()
+        k = np.searchsorted(all_ns, live.stamps_ns)
+        if not (k < len(all_ns)).all() or not np.array_equal(all_ns[np.minimum(k, len(all_ns) - 1)], live.stamps_ns):
+            raise ValueError("the graph's record lacks sweeps posed live (TrajectoryConfig.record_s shorter than "
+                             "the capture?)")
+        graph = all_graph[k]
+        graph_map = self._shifted(live.pelvis, graph)  # the feet meet the ground as their own trajectory puts it
+        t_s = (live.stamps_ns - live.stamps_ns[0]) * 1e-9
+        on_graph = moved_body(live.body, live.pelvis, graph)
+        t0 = time.perf_counter()
+        result = optimise_sequence(t_s, graph, on_graph.joints[:, self._feet], live.suit_pelvis[:, :3, 3],
+                                   live.suit_joints[:, self._feet], lambda _: graph_map, scene or self.config.scene,
+                                   sole_m)
+        window_s = np.full(len(result.windows), (time.perf_counter() - t0) / max(len(result.windows), 1))
+        return Refinement(live.stamps_ns, graph, result.pelvis, moved_body(live.body, live.pelvis, result.pelvis),
+                          self.site.points(), self._shifted(live.pelvis, result.pelvis), result.sole_m, window_s,
+                          time.perf_counter() - start)
+
+    def _shifted(self, live: np.ndarray, to: np.ndarray) -> np.ndarray:
+        """(M, 3) the site map rebuilt with each sweep shifted as its pelvis moved from ``live`` to ``to`` (N, 4, 4),
+        its attitude kept as registered: ICP places a sweep to a fraction of a degree against the map, and the
+        optimisation's turn of the body about the pelvis places the feet (the graph's or that turn moved the rig
+        sites' walls by centimetres, measured)."""
+        corrections = np.tile(np.eye(4), (len(live), 1, 1))
+        corrections[:, :3, 3] = to[:, :3, 3] - live[:, :3, 3]
+        return self.site.moved(corrections)
