@@ -37,8 +37,8 @@ $(HSC4D_DEMO)/metadata.yaml: | $(INSTALLED)
 	$(VENV)/bin/lip_rig site-bag --seed 3 --seconds 30 --out $(HSC4D_DEMO)
 
 demo-hsc4d: $(INSTALLED) $(HSC4D_DEMO)/metadata.yaml
-	rm -rf $(OUT)/hsc4d_demo
-	$(VENV)/bin/lip_process_bag $(HSC4D_DEMO) $(OUT)/hsc4d_demo --plot $(OUT)/hsc4d_demo.png
+	rm -rf $(OUT)/hsc4d_demo $(OUT)/hsc4d_demo_refined
+	$(VENV)/bin/lip_process_bag $(HSC4D_DEMO) $(OUT)/hsc4d_demo --plot $(OUT)/hsc4d_demo.png --refine
 
 # Regenerate the bundled demo bag (command documented in bags/README.md).
 demo-bag: $(INSTALLED)

@@ -10,7 +10,7 @@ from lip_ros.outputs import PoseTopics
 
 __all__ = ["HIP_LIDAR_TOPIC", "SUIT_ODOMETRY_TOPIC", "suit_imu_topic", "ODOMETRY_TOPIC", "MAP_TOPIC",
            "SUIT_CLOCK_OFFSET_TOPIC", "MAP_FRAME", "PELVIS_FRAME", "HSC4D_TOPICS", "OPTIMISED_ODOMETRY_TOPIC",
-           "OPTIMISED_TOPICS"]
+           "OPTIMISED_TOPICS", "REFINED_ODOMETRY_TOPIC", "REFINED_TOPICS", "REFINED_MAP_TOPIC"]
 
 #: The hip-worn Ouster's PointCloud2.
 HIP_LIDAR_TOPIC = "/hip/points"
@@ -42,3 +42,8 @@ OPTIMISED_ODOMETRY_TOPIC = "/hsc4d/optimised/odometry"
 #: Out, beyond the contract: the body after the scene-aware optimisation.
 OPTIMISED_TOPICS = PoseTopics("/hsc4d/optimised/joint_states", "/hsc4d/optimised/root_pose",
                               "/hsc4d/optimised/joint_poses")
+#: Written by ``lip_process_bag --refine`` (the offline refinement, lip_ros.hsc4d.refinement): the pelvis
+#: (nav_msgs/Odometry in :data:`MAP_FRAME`), the body, and the site's map rebuilt from the refined trajectory (S_opt).
+REFINED_ODOMETRY_TOPIC = "/hsc4d/refined/odometry"
+REFINED_TOPICS = PoseTopics("/hsc4d/refined/joint_states", "/hsc4d/refined/root_pose", "/hsc4d/refined/joint_poses")
+REFINED_MAP_TOPIC = "/hsc4d/refined/map"

@@ -9,7 +9,8 @@ the start's level, root-relative MPJPE of ``/hsc4d/joint_poses`` (through the
 same alignment), and Baseline1 (the suit's own ``/mocap/odometry``, moved onto
 the LiDAR's clock by the offset the graph found) through the same alignment
 fitted for it; the same of the body node's scene-aware optimisation
-(``/hsc4d/optimised/*``) when the run has it. The ground under the wearer comes from the site rebuilt from
+(``/hsc4d/optimised/*``) when the run has it, and of the offline refinement
+(``/hsc4d/refined/*``, ``lip_process_bag --refine``). The ground under the wearer comes from the site rebuilt from
 the capture's seed. Truth between its 100 Hz samples (``site_truth.npz``) is
 interpolated linearly at each output's stamp.
 """
@@ -31,6 +32,8 @@ from lip_ros.hsc4d.sensors import (
     ODOMETRY_TOPIC,
     OPTIMISED_ODOMETRY_TOPIC,
     OPTIMISED_TOPICS,
+    REFINED_ODOMETRY_TOPIC,
+    REFINED_TOPICS,
     SUIT_ODOMETRY_TOPIC,
 )
 from lip_ros.outputs import PoseTopics
@@ -57,6 +60,7 @@ class Hsc4dAccuracy:
     suit_final_m: float | None = None
     series: dict[str, np.ndarray] = field(default_factory=dict, repr=False)  # for the plot
     optimised: Hsc4dAccuracy | None = None  # the same of /hsc4d/optimised/*
+    refined: Hsc4dAccuracy | None = None  # the same of the offline refinement (/hsc4d/refined/*)
 
     def lines(self) -> list[str]:
         """Human-readable report."""
@@ -65,6 +69,9 @@ class Hsc4dAccuracy:
         if self.optimised is not None:
             out.append(f"after the scene-aware optimisation ({self.optimised.matched} poses on "
                        f"{OPTIMISED_ODOMETRY_TOPIC}): {self.optimised._figures()}")
+        if self.refined is not None:
+            out.append(f"after the offline refinement ({self.refined.matched} poses on {REFINED_ODOMETRY_TOPIC}): "
+                       f"{self.refined._figures()}")
         if self.suit_ate_m is not None:
             out.append(f"Baseline1 (the suit's own odometry) the same way: ATE {100 * self.suit_ate_m:.1f} cm, at the "
                        f"end {100 * self.suit_final_m:.1f} cm")
@@ -124,8 +131,10 @@ def _accuracy(outputs: Path, odometry_topic: str, topics: PoseTopics, truth: dic
                                  "stamp_ns": stamps, "fit": fit})
 
 
-def hsc4d_accuracy(inputs: Path, outputs: Path, offset_ns: int | None) -> Hsc4dAccuracy | None:
-    """The run's accuracy, or None without the rig's truth files or outputs in its span."""
+def hsc4d_accuracy(inputs: Path, outputs: Path, offset_ns: int | None, refined: Path | None = None
+                   ) -> Hsc4dAccuracy | None:
+    """The run's accuracy (and of the offline refinement's bag ``refined``, if given), or None without the rig's
+    truth files or outputs in its span."""
     truth_file, sidecar = inputs / SITE_TRUTH_FILE, inputs / TRUTH_FILE
     if not (truth_file.is_file() and sidecar.is_file()):
         return None
@@ -135,6 +144,8 @@ def hsc4d_accuracy(inputs: Path, outputs: Path, offset_ns: int | None) -> Hsc4dA
     if out is None:
         return None
     out.optimised = _accuracy(outputs, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, truth, rig)
+    if refined is not None:
+        out.refined = _accuracy(refined, REFINED_ODOMETRY_TOPIC, REFINED_TOPICS, truth, rig)
     stamps, fit, true_pelvis = out.series["stamp_ns"], out.series["fit"], out.series["truth"]
     suit_ns, suit = _odometry(inputs, SUIT_ODOMETRY_TOPIC)
     if offset_ns is not None and len(suit_ns) > 1:
@@ -174,6 +185,10 @@ def plot_hsc4d(outputs: Path, accuracy: Hsc4dAccuracy | None, png: Path) -> Path
         if accuracy.optimised is not None:
             o = accuracy.optimised.series
             lines.append(("optimised", o["live"], "m--", o["t_s"] + (o["stamp_ns"][0] - s["stamp_ns"][0]) * 1e-9))
+        if accuracy.refined is not None:
+            r = accuracy.refined.series
+            lines.append(("refined (offline)", r["live"], "b--",
+                          r["t_s"] + (r["stamp_ns"][0] - s["stamp_ns"][0]) * 1e-9))
         lines += [("Baseline1 (suit)", s["suit"], "c:", s["t_s"])] if "suit" in s else []
     else:
         lines, frame = [("live (fused)", pelvis, "r-", (stamps - stamps[0]) * 1e-9)], "map"

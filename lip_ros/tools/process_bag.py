@@ -16,6 +16,14 @@ trajectory and a few skeleton frames (LIP), or the trajectory from above, its
 height over time against the truth and the suit's own odometry, and the map
 (HSC4D: :mod:`lip_ros.tools.hsc4d_outputs`).
 
+HSC4D only: ``--refine`` then also runs the offline refinement on IN
+(:mod:`lip_ros.hsc4d.refinement`: the whole capture's pose graph, the
+scene-aware optimisation on the whole site's map, the map rebuilt from the
+refined trajectory) and records it beside OUT as the bag ``OUT_refined``:
+``/hsc4d/refined/odometry``, ``/hsc4d/refined/{joint_states,root_pose,joint_poses}``
+and ``/hsc4d/refined/map``; the summary adds its accuracy and its time
+against the capture's duration.
+
 LIP only: the calibration the graph solves is written to
 ``OUT_calibration.yaml`` beside OUT. A file of that name left by an earlier run is never reused silently: the
 run refuses to start; ``--calibration FILE`` starts from a calibration on
@@ -131,6 +139,7 @@ class ProcessSummary:
     hsc4d: Hsc4dAccuracy | None = None  # HSC4D: against the rig's truth
     offset_ms: str = ""  # HSC4D: the suit's clock offset the graph found
     catch_up_ms: dict[str, float] = field(default_factory=dict)  # HSC4D: latency of sweeps behind the backlog
+    refinement: str = ""  # HSC4D --refine: what and how fast
 
     def lines(self) -> list[str]:
         """Human-readable report."""
@@ -145,6 +154,8 @@ class ProcessSummary:
                        + ", ".join(f"{k} {v:.1f} ms" for k, v in self.catch_up_ms.items()))
         if self.offset_ms:
             out.append(f"suit clock offset found from the jump: {self.offset_ms} ms")
+        if self.refinement:
+            out.append(self.refinement)
         if self.hsc4d is not None:
             out += self.hsc4d.lines()
         if self.translation_cm is not None:
@@ -168,8 +179,10 @@ def _poses(bag: Path, topic: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP) -> ProcessSummary:
-    """Frame accounting (last /diagnostics of the nodes) and accuracy against the inputs' truth."""
+def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined: Path | None = None
+                      ) -> ProcessSummary:
+    """Frame accounting (last /diagnostics of the nodes) and accuracy against the inputs' truth (HSC4D: also of
+    the offline refinement's bag ``refined``, if given)."""
     last = {}  # status name -> its last values
     for m in read_messages(outputs, ["/diagnostics"]):
         last.update((s.name, s.values) for s in msg_to_diagnostics(m.msg).statuses)
@@ -189,7 +202,8 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP) -> Proc
         summary.offset_ms = "" if offset in ("", "unknown") else offset
         summary.catch_up_ms = {k.removeprefix(CATCH_UP_PREFIX): float(v)
                                for k, v in last[branch.latency_status].items() if k.startswith(CATCH_UP_PREFIX)}
-        summary.hsc4d = hsc4d_accuracy(inputs, outputs, round(float(offset) * 1e6) if summary.offset_ms else None)
+        summary.hsc4d = hsc4d_accuracy(inputs, outputs, round(float(offset) * 1e6) if summary.offset_ms else None,
+                                       refined)
         return summary
     if GT_TOPICS.joint_poses not in bag_topics(inputs):
         return summary
@@ -324,6 +338,8 @@ def _run(argv: list[str]) -> int:
                    help="playback speed factor (default 1: real time; 3 plays the bag 3x faster)")
     p.add_argument("--plot", type=Path, help="write a PNG of the trajectory (and skeleton frames or the map) here")
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the last frames after playback")
+    p.add_argument("--refine", action="store_true",
+                   help="HSC4D: also run the offline refinement and record it to the bag OUT_refined")
     p.add_argument("--calibration", type=Path,
                    help="LIP: start from this calibration (an earlier run's OUT_calibration.yaml) instead of finding "
                         "one in the bag")
@@ -343,6 +359,11 @@ def _run(argv: list[str]) -> int:
         node_args += ["-p", f"calibration_file:={calibration}"]
     elif args.calibration is not None:
         raise ToolError("--calibration is for LIP bags; the HSC4D graph finds its extrinsics from the data")
+    refined = args.outputs.with_name(args.outputs.name + "_refined") if args.refine else None
+    if args.refine and branch is LIP:
+        raise ToolError("--refine is for HSC4D bags (the offline refinement of the HSC4D branch)")
+    if refined is not None and refined.exists():
+        raise ToolError(f"{refined} exists (--refine writes there); choose a new OUT or remove it")
     start_ros(argv)
     first_ns, last_ns = bag_span(args.inputs)
     watch = _Watch(first_ns, args.rate, branch.pose_topic)
@@ -365,7 +386,9 @@ def _run(argv: list[str]) -> int:
             proc.send_signal(signal.SIGINT)
             proc.wait(timeout=30)
         watch.node.destroy_node()
-    summary = summarize_outputs(args.inputs, args.outputs, branch)
+    refinement = "" if refined is None else _refine(args.inputs, refined)
+    summary = summarize_outputs(args.inputs, args.outputs, branch, refined)
+    summary.refinement = refinement
     summary.bag_s, summary.wall_s, summary.rate = (last_ns - first_ns) / NS_PER_S, watch.wall_s(), args.rate
     if branch is LIP:
         summary.calibration = _calibration_used(calibration, args.calibration)
@@ -375,6 +398,26 @@ def _run(argv: list[str]) -> int:
                else plot_hsc4d(args.outputs, summary.hsc4d, args.plot))
         print(f"plot: {png}")
     return 0
+
+
+def _refine(inputs: Path, out: Path) -> str:
+    """Refine the HSC4D capture ``inputs`` offline and record it to the bag ``out``; what the summary says of it."""
+    from lip_ros.hsc4d.batch import refine_bag, write_refinement_bag  # torch: only when asked for
+
+    frames = bag_topics(inputs)[HIP_LIDAR_TOPIC].count
+    print(f"offline refinement of {frames} sweeps ...", flush=True)
+    start = time.monotonic()
+    refiner, refinement, skipped = refine_bag(inputs, progress=lambda k: k % 100 == 0 and print(
+        f"  sweep {k}/{frames}", flush=True))
+    counts = write_refinement_bag(refinement, refiner.body.skeleton, out)
+    wall_s = time.monotonic() - start
+    capture_s = (refinement.stamps_ns[-1] - refinement.stamps_ns[0]) * 1e-9
+    left_out = dict(skipped) | dict(refiner.counts) | {k: v for k, v in refiner.pipeline.counts.items()
+                                                       if "dropped" in k}
+    return (f"offline refinement: {len(refinement.stamps_ns)} poses of {frames} sweeps, the site's map rebuilt from "
+            f"them {len(refinement.map)} points, in {wall_s:.1f} s for a {capture_s:.1f} s capture "
+            f"({wall_s / max(capture_s, 1e-9):.2f} x its duration), left out: {left_out or 'nothing'}; "
+            f"{sum(counts.values())} messages written to {out}")
 
 
 def _calibration_used(calibration: Path, given: Path | None) -> str:

@@ -23,6 +23,9 @@ from lip_ros.hsc4d.sensors import (
     ODOMETRY_TOPIC,
     OPTIMISED_ODOMETRY_TOPIC,
     OPTIMISED_TOPICS,
+    REFINED_MAP_TOPIC,
+    REFINED_ODOMETRY_TOPIC,
+    REFINED_TOPICS,
 )
 from lip_ros.rig.bag import TRUTH_FILE
 from lip_ros.rig.site_bag import write_site_bag
@@ -40,7 +43,7 @@ def replay(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, str]:
     bag = root / "capture"
     write_site_bag(SiteCapture(SiteCaptureConfig(seed=5, seconds=SECONDS)), bag, progress=False)
     out, png = root / "outputs", root / "outputs.png"
-    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out), "--plot", str(png)],
+    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out), "--plot", str(png), "--refine"],
                           capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert png.read_bytes()[:4] == b"\x89PNG"
@@ -121,3 +124,28 @@ def test_the_body_node_optimises_every_frame_with_the_scene(replay):
     body = last["hsc4d_body_node: frames"].values
     assert int(body["optimisation: frames optimised"]) == frames_in and int(body["optimisation: frames waiting"]) == 0
     assert 0.0 < float(body["optimisation: sole height (m)"]) < 0.1
+
+
+def test_the_offline_refinement_is_recorded_beside_the_outputs(replay):
+    """``--refine``: every sweep refined, the body on each, the site's map once, latched, in ``map``; as accurate
+    as the live trajectory on this short capture, and faster than the capture."""
+    bag, out, stdout = replay
+    frames_in = bag_topics(bag)[HIP_LIDAR_TOPIC].count
+    refined = out.with_name(out.name + "_refined")
+    topics = bag_topics(refined)
+    for topic in (REFINED_ODOMETRY_TOPIC, REFINED_TOPICS.joint_poses, REFINED_TOPICS.joint_states,
+                  REFINED_TOPICS.root_pose):
+        assert topics[topic].count == frames_in, topic
+    assert topics[REFINED_MAP_TOPIC].count == 1
+    assert topics[REFINED_MAP_TOPIC].offered_qos[0].durability.name == "TRANSIENT_LOCAL"
+    fused = {o.stamp_ns for o in (msg_to_odometry(m.msg) for m in read_messages(out, [ODOMETRY_TOPIC]))}
+    odometry = [msg_to_odometry(m.msg) for m in read_messages(refined, [REFINED_ODOMETRY_TOPIC])]
+    assert {o.stamp_ns for o in odometry} == fused and {o.frame_id for o in odometry} == {MAP_FRAME}
+    poses = [msg_to_pose_array(m.msg) for m in read_messages(refined, [REFINED_TOPICS.joint_poses])]
+    assert np.allclose([p.positions[0] for p in poses], [o.position for o in odometry], atol=1e-6)
+    site = cloud_to_xyz(next(read_messages(refined, [REFINED_MAP_TOPIC])).msg)
+    assert len(site) > 10_000 and np.isfinite(site).all()
+    live_ate = _number(r"landing\): pelvis ATE ([\d.]+) cm", stdout)
+    assert _number(r"offline refinement \(\d+ poses on [^)]*\): pelvis ATE ([\d.]+) cm", stdout) <= live_ate + 1.0
+    ratio = _number(r"\(([\d.]+) x its duration\)", stdout)
+    assert 0.0 < ratio < 1.0, stdout
