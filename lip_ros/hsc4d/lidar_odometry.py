@@ -27,6 +27,9 @@ Per sweep (:meth:`LidarOdometry.register`):
 
 Poses are of the sensor frame L at the reference times, in the odometry frame
 O (L at the first sweep's reference time).
+
+:class:`KissIcpAlone` is kiss-icp's own pipeline as it ships, for the paper's
+Baseline2 (LiDAR-only odometry): no IMU, no suit.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from kiss_icp.config import KISSConfig
 from kiss_icp.config.config import AdaptiveThresholdConfig, DataConfig, MappingConfig, RegistrationConfig
+from kiss_icp.kiss_icp import KissICP
 from kiss_icp.mapping import get_voxel_hash_map
 from kiss_icp.registration import get_registration
 from kiss_icp.threshold import get_threshold_estimator
@@ -46,7 +50,8 @@ from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from lip_ros.hsc4d.mount import HipMountPrior, rotation_between
 from lip_ros.hsc4d.suit_track import SuitTrack
 
-__all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "VerticalShift", "OdometryStep", "LidarOdometry"]
+__all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "VerticalShift", "OdometryStep", "LidarOdometry",
+           "KissIcpAlone"]
 
 #: ``rotation(t_ns, ref_ns)``: the sensor frame at times ``t_ns`` (N,) in the sensor frame at ``ref_ns``,
 #: R_Lref_L (N, 3, 3); NaN where unknown.
@@ -287,3 +292,24 @@ class LidarOdometry:
         if differ <= allowed:
             return ""
         return f"horizontal motion {differ:.2f} m/s off the suit's ({speed:.2f} m/s; allowed {allowed:.2f})"
+
+
+class KissIcpAlone:
+    """kiss-icp's pipeline with its defaults (deskew by its constant-velocity model on the points' times, adaptive
+    threshold, 500 ICP iterations, voxel size a hundredth of the range) on sweeps with the wearer's returns
+    removed (:class:`WearerFilter`, as any user would): LiDAR-only odometry, the paper's Baseline2."""
+
+    def __init__(self, max_range_m: float = OdometryConfig.max_range_m, wearer: WearerFilter | None = None) -> None:
+        self.wearer = wearer or WearerFilter()
+        self._kiss = KissICP(KISSConfig(data=DataConfig(max_range=max_range_m, deskew=True),
+                                        mapping=MappingConfig(voxel_size=max_range_m / 100.0)))
+
+    def register(self, points: np.ndarray, point_ns: np.ndarray) -> np.ndarray:
+        """One sweep, points (N, 3) in L seen at ``point_ns`` (N,); T_O_L (4, 4) at the middle of its points'
+        times (O: L at the first sweep's)."""
+        keep = self.wearer.keep(points)
+        t = point_ns[keep].astype(np.float64)
+        span = t.max() - t.min() if t.size else 0.0
+        self._kiss.register_frame(np.asarray(points[keep], dtype=np.float64),
+                                  (t - t.min()) / span if span > 0.0 else np.full(t.size, 0.5))
+        return self._kiss.last_pose.copy()

@@ -53,11 +53,13 @@ class RefinementConfig:
 
 @dataclass(frozen=True)
 class LiveRecord:
-    """The live outputs kept for the refinement, per sweep posed (N): reference times (LiDAR clock), the fused
-    pelvis T_map_P and the odometry's sensor pose T_map_L (N, 4, 4), why a registration was not believed (N,),
-    the body on the fused pelvis, the suit's own pelvis pose (in its world) and its body on it."""
+    """The live outputs kept for the refinement, per sweep posed (N): reference times (LiDAR clock), the stamps the
+    sweeps came with, the fused pelvis T_map_P and the odometry's sensor pose T_map_L (N, 4, 4), why a
+    registration was not believed (N,), the body on the fused pelvis, the suit's own pelvis pose (in its world)
+    and its body on it."""
 
     stamps_ns: np.ndarray
+    sweeps_ns: np.ndarray
     pelvis: np.ndarray
     lidar: np.ndarray
     rejected: np.ndarray
@@ -150,6 +152,7 @@ class CaptureRefiner:
         """The live outputs kept so far."""
         steps = self._steps
         return LiveRecord(np.array([s.stamp_ns for s in steps], dtype=np.int64),
+                          np.array([s.sweep_ns for s in steps], dtype=np.int64),
                           np.array([s.pelvis for s in steps]).reshape(-1, 4, 4),
                           np.array([s.lidar for s in steps]).reshape(-1, 4, 4),
                           np.array([s.rejected for s in steps], dtype=object), _stack(self._bodies),

@@ -7,7 +7,8 @@ order (lip_ros.hsc4d.evaluation). Printed per capture and averaged: pelvis ATE
 (RMSE after a yaw + translation fit on the 5 s after the jump's landing, kept
 fixed), vertical error off the start's level (stairs, ramps, terrace), error at
 the end, checkpoint error, foot contact error, foot sliding, MPJPE, for
-Baseline1 (suit only), Baseline2 (LiDAR odometry only), the live fusion, the
+Baseline1 (suit only), Baseline2 (kiss-icp alone), the LiDAR odometry with
+the suit before the pose graph, the live fusion, the
 live fusion after the scene-aware optimisation, the offline refinement and the
 refinement without each loss term (the ablation); the clock offset found; the
 registrations not believed; the time per sweep, per optimisation window and of
@@ -32,7 +33,8 @@ import numpy as np
 from lip_ros.hsc4d import evaluation as ev
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
-_LABELS = {"baseline1_suit": "Baseline1 (suit)", "baseline2_lidar": "Baseline2 (LiDAR)", "live": "live graph",
+_LABELS = {"baseline1_suit": "Baseline1 (suit)", "baseline2_lidar": "Baseline2 (kiss-icp)",
+           "lidar_with_suit": "LiDAR odo. + suit", "live": "live graph",
            "live_optimised": "live optimised", "refined_graph": "refined graph only", "refined": "refined",
            **{name: "  without " + name.rsplit("_", 1)[1] for name in ev.ABLATIONS}}
 _STYLES = {"baseline1_suit": "c:", "baseline2_lidar": "g-.", "live": "r-", "live_optimised": "m-", "refined": "b--"}

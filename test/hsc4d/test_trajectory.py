@@ -89,7 +89,8 @@ def test_the_map_frame_stands_on_the_ground_under_the_first_pelvis_position():
 def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than_the_suit():
     """A 24 s capture at 512 columns played in arrival order: the pipeline holds the sweeps until the jump, finds
     the suit's clock within 10 ms, and its live and refined pelvis trajectories stay within 10 cm of the truth
-    (ATE after the yaw + translation fit on the 5 s after the landing), while the suit alone drifts farther. The
+    (ATE after the yaw + translation fit on the 5 s after the landing), while the suit alone and kiss-icp alone
+    (the baselines) are more than twice as far off. The
     body on them, optimised with the scene: checkpoints within 10 cm, foot contact within 5 cm, MPJPE under
     20 mm, sliding no worse than the suit's own (the issue's targets are 10 cm, 3 cm, 20 mm and 1 cm a frame
     over held-out 90 s walks, measured by hsc4d_eval; this short one at 512 columns is looser)."""
@@ -100,13 +101,15 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
     metrics = trajectory_metrics(run)
     assert metrics["live"]["ate_m"] < 0.1 and metrics["refined"]["ate_m"] < 0.1
     assert metrics["baseline1_suit"]["ate_m"] > 2.0 * metrics["live"]["ate_m"]
+    assert metrics["baseline2_lidar"]["ate_m"] > 2.0 * metrics["live"]["ate_m"]  # kiss-icp alone: 16 cm here
     assert np.isfinite([v for m in metrics.values() for v in m.values() if not np.isnan(v)]).all()
     body = body_metrics(run, capture.terrain)
     assert set(body) == set(METHODS + ABLATIONS) | {"truth"}
     for name in ("live_optimised", "refined"):
         assert body[name]["checkpoint_m"] < 0.1 and body[name]["contact_m"] < 0.05 and body[name]["mpjpe_mm"] < 20
         assert body[name]["sliding_m"] <= body["baseline1_suit"]["sliding_m"]
-    assert body["baseline1_suit"]["contact_m"] > 2.0 * body["refined"]["contact_m"]
+    for baseline in ("baseline1_suit", "baseline2_lidar"):
+        assert body[baseline]["contact_m"] > 2.0 * body["refined"]["contact_m"], baseline
     assert 0.0 < run.sole_m < 0.1 and len(run.window_s) >= 2
     scene = map_metrics(run, capture.terrain)
     for name in ("live", "live_site", "refined"):
