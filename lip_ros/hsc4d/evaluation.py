@@ -42,7 +42,7 @@ local map, the whole site's from the live trajectory and from the refined one).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,8 +58,8 @@ from lip_ros.rig.mesh_raycast import MeshRaycaster
 from lip_ros.rig.site_capture import SiteCapture
 from lip_ros.rig.terrain import Terrain
 
-__all__ = ["METHODS", "ABLATIONS", "MAPS", "TrajectoryRun", "run_capture", "aligned", "trajectory_metrics",
-           "body_metrics", "map_metrics"]
+__all__ = ["METHODS", "ABLATIONS", "MAPS", "TrajectoryRun", "capture_sweeps", "run_capture", "aligned",
+           "trajectory_metrics", "body_metrics", "map_metrics"]
 
 #: the trajectories compared, in report order
 METHODS = ("baseline1_suit", "baseline2_lidar", "lidar_with_suit", "live", "live_optimised", "refined_graph", "refined")
@@ -101,23 +101,15 @@ class TrajectoryRun:
     refine_s: float
 
 
-def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
-                progress: Callable[[int, int], None] | None = None,
-                scene: SceneOptimisationConfig | None = None) -> TrajectoryRun:
-    """Play ``capture`` through a :class:`CaptureRefiner` (``progress(k, n)`` after each sweep), pose the body on
-    each method's trajectory and optimise the live one and refine the capture with ``scene``."""
-    scene = scene or SceneOptimisationConfig()
-    refiner = CaptureRefiner(RefinementConfig(trajectory=config or TrajectoryConfig(), scene=scene))
-    pipeline = refiner.pipeline
+def capture_sweeps(capture: SiteCapture, refiner: CaptureRefiner) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
+    """The capture's sweeps in arrival order, each once the suit's samples and odometry sent before it (on the
+    suit's clock) went to ``refiner``: (index, stamp ns, points (N, 3) in L, their times ns (N,)); the caller
+    gives each sweep to the refiner (or its pipeline)."""
     streams = {name: list(s.samples(f"mocap_{name}")) for name, s in capture.suit_streams().items()}
     odometry = capture.suit_odometry()
     true_offset = int(round(capture.suit.clock_offset_s * 1e9))
     imu_next = dict.fromkeys(streams, 0)
     odo_next = 0
-    steps, sweep_ms = 0, []
-    kiss, lidar_only = KissIcpAlone(), {}  # Baseline2's sensor pose per sweep stamp
-    maps: list[tuple[int, np.ndarray]] = []  # (the newest step's index, the live map then), once per window
-    n = capture.num_frames
     for k, frame in capture.frames():
         arrival = capture.frame_stamp_ns(k) + capture.lidar.period_ns + true_offset  # on the suit's clock
         for name, samples in streams.items():
@@ -131,11 +123,26 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                                       odometry.quat[odo_next])
             odo_next += 1
         p = frame.points.ravel()
-        points, point_ns = np.stack([p["x"], p["y"], p["z"]], axis=1), frame.stamp_ns + p["t"].astype(np.int64)
+        yield k, frame.stamp_ns, np.stack([p["x"], p["y"], p["z"]], axis=1), frame.stamp_ns + p["t"].astype(np.int64)
+
+
+def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
+                progress: Callable[[int, int], None] | None = None,
+                scene: SceneOptimisationConfig | None = None) -> TrajectoryRun:
+    """Play ``capture`` through a :class:`CaptureRefiner` (``progress(k, n)`` after each sweep), pose the body on
+    each method's trajectory and optimise the live one and refine the capture with ``scene``."""
+    scene = scene or SceneOptimisationConfig()
+    refiner = CaptureRefiner(RefinementConfig(trajectory=config or TrajectoryConfig(), scene=scene))
+    pipeline = refiner.pipeline
+    steps, sweep_ms = 0, []
+    kiss, lidar_only = KissIcpAlone(), {}  # Baseline2's sensor pose per sweep stamp
+    maps: list[tuple[int, np.ndarray]] = []  # (the newest step's index, the live map then), once per window
+    n = capture.num_frames
+    for k, stamp_ns, points, point_ns in capture_sweeps(capture, refiner):
         finite = np.isfinite(points).all(axis=1)
-        lidar_only[frame.stamp_ns] = kiss.register(points[finite], point_ns[finite])
+        lidar_only[stamp_ns] = kiss.register(points[finite], point_ns[finite])
         t0 = time.perf_counter()
-        out = pipeline.add_sweep(points, point_ns, frame.stamp_ns)
+        out = pipeline.add_sweep(points, point_ns, stamp_ns)
         ms = 1e3 * (time.perf_counter() - t0)
         refiner.keep(out)
         steps += len(out)
@@ -173,6 +180,7 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
     for term, name in zip(TERMS, ABLATIONS, strict=True):
         ablated = refiner.refine(without(scene, term), refined.sole_m)
         poses[name], joints[name] = ablated.pelvis, ablated.body.joints
+    true_offset = int(round(capture.suit.clock_offset_s * 1e9))
     jump = next(end for name, _, end in capture.phases_ns() if name == "jump")
     return TrajectoryRun(capture.config.seed, t_s, {k: v[:, :3, 3] for k, v in poses.items()}, joints,
                          truth.pelvis, truth.joints, capture.terrain.surface_height(truth.pelvis[:, :2]),
