@@ -102,7 +102,7 @@ class CaptureRefiner:
         self.site = SiteMap(c.site_map)
         self.counts: Counter[str] = Counter()  #: frames not kept for the refinement, by reason
         self._feet = [self.body.skeleton.index(f) for f in FEET]
-        self._steps: list[TrajectoryStep] = []
+        self._steps: list[tuple[int, int, np.ndarray, np.ndarray, str]] = []  # of each step: all but its points
         self._bodies: list[BodyPose] = []
         self._suit: list[tuple[np.ndarray, np.ndarray]] = []  # the suit's pelvis pose and joints
         self._scaled = False
@@ -143,19 +143,17 @@ class CaptureRefiner:
             self.counts[f"not refined: {why or 'no suit odometry near the sweep'}"] += 1
             return
         self.site.add(step.points, step.lidar, len(self._steps))
-        self._steps.append(step)
+        self._steps.append((step.stamp_ns, step.sweep_ns, step.pelvis, step.lidar, step.rejected))
         self._bodies.append(body)
         self._suit.append((T_suit, suit.joints))
 
     @property
     def record(self) -> LiveRecord:
         """The live outputs kept so far."""
-        steps = self._steps
-        return LiveRecord(np.array([s.stamp_ns for s in steps], dtype=np.int64),
-                          np.array([s.sweep_ns for s in steps], dtype=np.int64),
-                          np.array([s.pelvis for s in steps]).reshape(-1, 4, 4),
-                          np.array([s.lidar for s in steps]).reshape(-1, 4, 4),
-                          np.array([s.rejected for s in steps], dtype=object), _stack(self._bodies),
+        stamps, sweeps, pelvis, lidar, rejected = zip(*self._steps, strict=True) if self._steps else ([],) * 5
+        return LiveRecord(np.array(stamps, dtype=np.int64), np.array(sweeps, dtype=np.int64),
+                          np.array(pelvis).reshape(-1, 4, 4), np.array(lidar).reshape(-1, 4, 4),
+                          np.array(rejected, dtype=object), _stack(self._bodies),
                           np.array([s[0] for s in self._suit]).reshape(-1, 4, 4),
                           np.array([s[1] for s in self._suit]))
 
