@@ -9,14 +9,16 @@ received -> ``/hsc4d/odometry`` published p50/p90/p99/max as the trajectory node
 reports it, the wall time as a multiple of real time, ATE and MPJPE against the
 rig's truth) and, sampled from /proc every 0.2 s while it runs, the CPU (% of
 one core) and RSS (start of playback, end, peak) of the trajectory node's
-process and of the body node's.
+process and of the body node's, and with ``--plot PNG`` their RSS over time
+(a long ``--seconds`` shows whether memory stays flat).
 
 DDS stays on loopback in a random ``ROS_DOMAIN_ID`` unless set. Progress on
 stderr, a table on stdout.
 
 Run:
   python benchmarks/bench_hsc4d_graph.py [--rates 10 20] [--seconds 30] [--seed 3] [--bag-dir out/bench_hsc4d]
-      [--json out/bench_hsc4d_graph.json]
+      [--json out/bench_hsc4d_graph.json] [--plot out/bench_hsc4d_rss.png]
+  the 10-minute memory run: --rates 10 --seconds 600 --plot out/bench_hsc4d_rss_600s.png
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_graph import SAMPLE_S, ProcUsage  # noqa: E402
@@ -95,9 +99,35 @@ def run(bag: Path, out: Path) -> dict:
         figures[key] = [float(g) for g in m.groups()] if m else None
     for name, u in usage.items():
         s = u.summary(start, time.monotonic())
+        minutes = np.arange(0.0, u.t[-1] - u.t[0], 60.0)  # RSS once a minute of the run
+        at = np.searchsorted(np.array(u.t) - u.t[0], minutes)
         figures[name] = {"cpu_pct": round(s["cpu_pct"], 1), "rss_first_mb": round(u.rss_kb[0] / 1024, 1),
-                         "rss_last_mb": round(u.rss_kb[-1] / 1024, 1), "peak_mb": round(s["hwm_mb"], 1)}
+                         "rss_last_mb": round(u.rss_kb[-1] / 1024, 1), "peak_mb": round(s["hwm_mb"], 1),
+                         "rss_per_minute_mb": [round(u.rss_kb[k] / 1024, 1) for k in at],
+                         "rss_curve": ([round(x - u.t[0], 1) for x in u.t], [round(r / 1024, 1) for r in u.rss_kb])}
     return figures
+
+
+def _plot(results: dict, png: Path) -> None:
+    """RSS over time of the graph's processes, per rate."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    for rate, r in results.items():
+        for name in ("trajectory (fusion_node)", "body (child)"):
+            if name in r:
+                t, rss = r[name]["rss_curve"]
+                ax.plot(np.array(t) / 60.0, rss, label=f"{rate} Hz: {name}")
+    ax.set(xlabel="time since playback started (min)", ylabel="RSS (MB)", title="HSC4D graph: resident memory")
+    ax.set_ylim(bottom=0)
+    ax.legend()
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=90)
+    plt.close(fig)
 
 
 def main() -> int:
@@ -108,6 +138,7 @@ def main() -> int:
     p.add_argument("--seed", type=int, default=3)
     p.add_argument("--bag-dir", type=Path, default=Path("out/bench_hsc4d"))
     p.add_argument("--json", type=Path)
+    p.add_argument("--plot", type=Path, help="PNG of the graph processes' RSS over time")
     args = p.parse_args()
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
@@ -126,7 +157,11 @@ def main() -> int:
             if name in r:
                 u = r[name]
                 print(f"  {name}: CPU {u['cpu_pct']:.0f} % of a core, RSS {u['rss_first_mb']:.0f} -> "
-                      f"{u['rss_last_mb']:.0f} MB (peak {u['peak_mb']:.0f} MB)")
+                      f"{u['rss_last_mb']:.0f} MB (peak {u['peak_mb']:.0f} MB); once a minute: "
+                      + " ".join(f"{m:.0f}" for m in u["rss_per_minute_mb"]))
+    if args.plot:
+        _plot(results, args.plot)
+        print(f"plot: {args.plot}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=1))
