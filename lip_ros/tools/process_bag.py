@@ -387,7 +387,7 @@ def _run(argv: list[str]) -> int:
             proc.wait(timeout=30)
         watch.node.destroy_node()
     refinement = "" if refined is None else _refine(args.inputs, refined)
-    summary = summarize_outputs(args.inputs, args.outputs, branch, refined)
+    summary = summarize_outputs(args.inputs, args.outputs, branch, refined if refined and refined.exists() else None)
     summary.refinement = refinement
     summary.bag_s, summary.wall_s, summary.rate = (last_ns - first_ns) / NS_PER_S, watch.wall_s(), args.rate
     if branch is LIP:
@@ -405,10 +405,17 @@ def _refine(inputs: Path, out: Path) -> str:
     from lip_ros.hsc4d.batch import refine_bag, write_refinement_bag  # torch: only when asked for
 
     frames = bag_topics(inputs)[HIP_LIDAR_TOPIC].count
+
+    def progress(k: int) -> None:
+        if k % 100 == 0:
+            print(f"  sweep {k}/{frames}", flush=True)
+
     print(f"offline refinement of {frames} sweeps ...", flush=True)
     start = time.monotonic()
-    refiner, refinement, skipped = refine_bag(inputs, progress=lambda k: k % 100 == 0 and print(
-        f"  sweep {k}/{frames}", flush=True))
+    try:
+        refiner, refinement, skipped = refine_bag(inputs, progress=progress)
+    except ValueError as exc:  # nothing posed, or no ground under the feet anywhere
+        return f"offline refinement: none ({exc}); {out} not written"
     counts = write_refinement_bag(refinement, refiner.body.skeleton, out)
     wall_s = time.monotonic() - start
     capture_s = (refinement.stamps_ns[-1] - refinement.stamps_ns[0]) * 1e-9
