@@ -38,8 +38,8 @@ _LABELS = {"baseline1_suit": "Baseline1 (suit)", "baseline2_lidar": "Baseline2 (
            "live_optimised": "live optimised", "refined_graph": "refined graph only", "refined": "refined",
            **{name: "  without " + name.rsplit("_", 1)[1] for name in ev.ABLATIONS}}
 _STYLES = {"baseline1_suit": "c:", "baseline2_lidar": "g-.", "live": "r-", "live_optimised": "m-", "refined": "b--"}
-#: printed per method: (metric key, label, scale, unit)
 _MAP_LABELS = {"live": "live local map", "live_site": "site map, live (S_live)", "refined": "site map, refined (S_opt)"}
+#: printed per method: (metric key, label, scale, unit)
 _COLUMNS = (("ate_m", "ATE", 100.0, "cm"), ("vertical_m", "vertical", 100.0, "cm"), ("final_m", "end", 100.0, "cm"),
             ("checkpoint_m", "checkpoint", 100.0, "cm"), ("contact_m", "contact", 100.0, "cm"),
             ("sliding_m", "sliding", 100.0, "cm/frame"), ("mpjpe_mm", "MPJPE", 1.0, "mm"))
