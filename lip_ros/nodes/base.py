@@ -64,10 +64,10 @@ BETWEEN_NODES = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: SensorDataQoS (best effort) for the 60 Hz IMUs, with room for the samples that arrive while a frame is processed.
 IMU_INPUT = QoSProfile(depth=50, reliability=qos_profile_sensor_data.reliability,
                        durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
-#: SensorDataQoS for the HSC4D suit's 100 Hz topics: 2 s deep, for a node's longest callback (the trajectory node
+#: SensorDataQoS for the HSC4D suit's 100 Hz topics: 5 s deep, for a node's longest callback (the trajectory node
 #: registering sweeps while the rest of its process wants the interpreter; the body node optimising a window:
-#: up to about a second measured)
-SUIT_INPUT = QoSProfile(depth=200, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability,
+#: about a second measured for the first, more under load)
+SUIT_INPUT = QoSProfile(depth=500, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability,
                         history=IMU_INPUT.history)
 
 

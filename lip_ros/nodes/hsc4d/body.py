@@ -123,7 +123,8 @@ class BodyNode(GraphNode):
             raise ParameterError(str(exc)) from exc
         self._scale_from_height = p["body_scale"] == 0
         self._offset_ns: int | None = None
-        self._waiting: deque[tuple[int, str, np.ndarray, float]] = deque()  # stamp, frame, T_map_P, received
+        # stamp, frame, T_map_P, received, and when it goes on with the suit data there is (monotonic s)
+        self._waiting: deque[tuple[int, str, np.ndarray, float, float]] = deque()
         self._degraded = 0
         self._latency = LatencyWindow()  # fused pose received -> body published
         self._out = self._pose_publishers(HSC4D_TOPICS)
@@ -229,7 +230,12 @@ class BodyNode(GraphNode):
                 self._map_failed = self._map
                 self.get_logger().info(f"optimisation waits for a later map: {exc}")
                 return
-            self._window_latency.add(time.monotonic() - start)
+            blocked = time.monotonic() - start
+            self._window_latency.add(blocked)
+            # the suit's samples could not come in meanwhile (this callback held the node): the poses waiting for
+            # them wait that much longer, rather than go on with a gap the samples still queued would fill (a CI
+            # run lost 2 poses to "suit data missing" right after the first window)
+            self._waiting = deque((*w[:4], w[4] + blocked) for w in self._waiting)
             self._publish_optimised(result.t, result.R)
 
     def _publish_optimised(self, t: np.ndarray, R: np.ndarray) -> None:
@@ -283,9 +289,10 @@ class BodyNode(GraphNode):
         odometry = msg_to_odometry(msg)
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
-        self._waiting.append((odometry.stamp_ns, odometry.frame_id, T, time.monotonic()))
+        now = time.monotonic()
+        self._waiting.append((odometry.stamp_ns, odometry.frame_id, T, now, now + self.params["suit_wait_s"]))
         while len(self._waiting) > self.params["max_waiting_poses"]:
-            self._pose(*self._waiting.popleft())
+            self._pose(*self._waiting.popleft()[:4])
         self._drain()
         return odometry.stamp_ns
 
@@ -298,11 +305,11 @@ class BodyNode(GraphNode):
                 self._skip(None, "no map yet" if self._map is None else "no ground under the feet of the first "
                            "window (no sole height)")
         while self._waiting:
-            stamp_ns, _, _, received = self._waiting[0]
+            stamp_ns, _, _, _, deadline = self._waiting[0]
             covered = self._offset_ns is not None and self._covered(stamp_ns + self._offset_ns)
-            if not covered and now - received < self.params["suit_wait_s"]:
+            if not covered and now < deadline:
                 return
-            self._pose(*self._waiting.popleft())
+            self._pose(*self._waiting.popleft()[:4])
 
     def _covered(self, suit_ns: int) -> bool:
         """Whether every segment has sent a sample at or after ``suit_ns``."""
