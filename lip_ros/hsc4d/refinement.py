@@ -34,7 +34,7 @@ from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, optimise_sequence
 from lip_ros.hsc4d.site_map import SiteMap, SiteMapConfig
 from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body
-from lip_ros.hsc4d.trajectory import SUIT_RATE_HZ, TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
+from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 
 __all__ = ["RefinementConfig", "LiveRecord", "Refinement", "CaptureRefiner", "FEET"]
 
@@ -96,9 +96,7 @@ class CaptureRefiner:
     def __init__(self, config: RefinementConfig | None = None) -> None:
         c = self.config = config or RefinementConfig()
         self.pipeline = TrajectoryPipeline(c.trajectory)
-        t = c.trajectory
-        self.body = SuitBody(load_skeleton(), SuitBodyConfig(
-            capacity=int((t.hold_s + t.jump.max_offset_s + 5.0) * SUIT_RATE_HZ)))
+        self.body = SuitBody(load_skeleton(), SuitBodyConfig(capacity=c.trajectory.suit_capacity))
         self.site = SiteMap(c.site_map)
         self.counts: Counter[str] = Counter()  #: frames not kept for the refinement, by reason
         self._feet = [self.body.skeleton.index(f) for f in FEET]

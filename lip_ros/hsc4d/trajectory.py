@@ -75,6 +75,11 @@ class TrajectoryConfig:
     record_s: float = 3600.0  # each sweep's factors kept this long for the offline refinement (256 B a sweep)
     seed: int = 0  # of the RANSAC fits
 
+    @property
+    def suit_capacity(self) -> int:
+        """Suit samples to keep per stream: the sweeps held until the jump need theirs, across the clock offset."""
+        return int((self.hold_s + self.jump.max_offset_s + 5.0) * SUIT_RATE_HZ)
+
     def __post_init__(self) -> None:
         if not (self.hold_s > 0.0 and self.map_after_s >= 0.0 and self.record_s > 0.0 and self.scale_window_s > 0.0
                 and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0):
@@ -143,7 +148,7 @@ class TrajectoryPipeline:
 
     def __init__(self, config: TrajectoryConfig | None = None) -> None:
         c = self.config = config or TrajectoryConfig()
-        capacity = int((c.hold_s + c.jump.max_offset_s + 5.0) * SUIT_RATE_HZ)  # the held sweeps' suit data too
+        capacity = c.suit_capacity
         self.rotation = PelvisRotation(c.mount.R_M_L, capacity=capacity)
         self.suit = SuitTrack(c.mount, capacity=capacity)
         self.jump = JumpSync(c.jump)
