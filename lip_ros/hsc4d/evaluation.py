@@ -78,8 +78,9 @@ class TrajectoryRun:
     (s), the suit clock offset found and the true one (ns), which registrations were not believed (N,), the time
     each sweep took in ``add_sweep`` (ms; the sweeps held until the jump are registered together in the call that
     finds it, each counted at that call's time over their number), the refinement's optimisation time per window
-    (s) and the sole height it measured (m), the pipeline's counters, the maps (M, 3) in ``map`` (:data:`MAPS`) and
-    the wall time of the whole offline refinement (s)."""
+    (s) and the sole height it measured (m), the pipeline's counters, the maps (M, 3) in ``map`` (:data:`MAPS`), the
+    wall time of the whole offline refinement (s), and the lever arm (3,) (m, in the pelvis frame) the pipeline
+    ended with, its nominal value and the truth."""
 
     seed: int
     t_s: np.ndarray
@@ -99,6 +100,9 @@ class TrajectoryRun:
     counts: dict[str, int]
     maps: dict[str, np.ndarray]
     refine_s: float
+    lever_m: np.ndarray
+    nominal_lever_m: np.ndarray
+    true_lever_m: np.ndarray
 
 
 def capture_sweeps(capture: SiteCapture, refiner: CaptureRefiner) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
@@ -188,7 +192,8 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                          true_offset, np.array([bool(r) for r in live.rejected]), np.array(sweep_ms),
                          refined.window_s, refined.sole_m, dict(pipeline.counts),
                          {"live": maps[-1][1], "live_site": refined.live_map, "refined": refined.map},
-                         refined.seconds)
+                         refined.seconds, pipeline.lever_m, np.asarray(pipeline.config.mount.lever_m),
+                         np.asarray(capture.mount.lever_m))
 
 
 def _fit_window(run: TrajectoryRun, fit_s: float) -> np.ndarray:

@@ -37,13 +37,12 @@ class SuitTrack:
         self.max_gap_ns = int(max_gap_ns)
         self._samples: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=capacity)
         self.offset_ns: int | None = None
-        self.T_M_L = self.mount.T_M_L  #: the mounting used: the nominal one until :meth:`set_mount_rotation`
+        self.T_M_L = self.mount.T_M_L  #: the mounting used: the nominal one until :meth:`set_mount`
         self._T_L_M = self.mount.T_L_M
 
-    def set_mount_rotation(self, R_M_L: np.ndarray) -> None:
-        """Use this sensor rotation in the pelvis frame from now on (e.g. levelled with gravity at the start)."""
-        self.T_M_L = self.T_M_L.copy()
-        self.T_M_L[:3, :3] = R_M_L
+    def set_mount(self, T_M_L: np.ndarray) -> None:
+        """Use this sensor pose (4, 4) in the pelvis frame from now on (e.g. levelled with gravity at the start)."""
+        self.T_M_L = np.array(T_M_L, dtype=np.float64)
         self._T_L_M = np.linalg.inv(self.T_M_L)
 
     def set_offset(self, offset_ns: int) -> None:

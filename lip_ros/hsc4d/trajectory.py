@@ -20,7 +20,9 @@ pose graph, in one object the nodes and the batch tools share (ROS-free).
    the ground's up in the LiDAR against the suit's in the pelvis) and from then
    on keeps the odometry's tilt on the suit's gravity; while walking, turns the
    mounting about the body's axis as the LiDAR's steps show
-   (:class:`~lip_ros.hsc4d.mount.MountYawEstimator`);
+   (:class:`~lip_ros.hsc4d.mount.MountYawEstimator`) and moves its lever arm
+   as the LiDAR's motion over the body's turns shows
+   (:class:`~lip_ros.hsc4d.mount.LeverArmEstimator`);
 4. fuses each sweep in the live pose graph (:mod:`~lip_ros.hsc4d.pose_graph`):
    the believed registrations as landmarks, the suit's motion between sweeps
    as between factors, with the odometry's vertical (the suit knows no
@@ -45,16 +47,13 @@ from lip_ros.core.rotations import axis_angle_to_matrix
 from lip_ros.hsc4d.jump_sync import JumpSync, JumpSyncConfig
 from lip_ros.hsc4d.lidar_odometry import LidarOdometry, OdometryConfig, WearerFilter
 from lip_ros.hsc4d.map_frame import MapFrame, MapFrameConfig, estimate_map_frame
-from lip_ros.hsc4d.mount import HipMountPrior, MountYawEstimator, levelled_mount_rotation
+from lip_ros.hsc4d.mount import HipMountPrior, LeverArmEstimator, MountYawEstimator, levelled_mount_rotation
 from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
 from lip_ros.hsc4d.pose_graph import LiveTrajectoryGraph, PoseGraphConfig, fuse_batch
 from lip_ros.hsc4d.suit_track import SuitTrack
 from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
 
 __all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline"]
-
-#: suit samples per second (the contract's 100 Hz), to size the suit's buffers
-SUIT_RATE_HZ = 100.0
 
 
 @dataclass(frozen=True)
@@ -74,15 +73,16 @@ class TrajectoryConfig:
     max_scale_error: float = 0.2  # the scale is kept within 1 -+ this
     record_s: float = 3600.0  # each sweep's factors kept this long for the offline refinement (256 B a sweep)
     seed: int = 0  # of the RANSAC fits
+    suit_rate_hz: float = 100.0  # samples per second of each suit stream (the contract's 100), to size its buffers
 
     @property
     def suit_capacity(self) -> int:
         """Suit samples to keep per stream: the sweeps held until the jump need theirs, across the clock offset."""
-        return int((self.hold_s + self.jump.max_offset_s + 5.0) * SUIT_RATE_HZ)
+        return int(np.ceil((self.hold_s + self.jump.max_offset_s + 5.0) * self.suit_rate_hz))
 
     def __post_init__(self) -> None:
         if not (self.hold_s > 0.0 and self.map_after_s >= 0.0 and self.record_s > 0.0 and self.scale_window_s > 0.0
-                and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0):
+                and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0 and self.suit_rate_hz > 0.0):
             raise ValueError(f"invalid {self}")
 
 
@@ -159,6 +159,7 @@ class TrajectoryPipeline:
         self.mount_levelled_deg = float("nan")  #: how far levelling turned the nominal mounting
         self.mount_yaw = MountYawEstimator()
         self.mount_yaw_deg = 0.0  #: how far walking turned it since, about the body's axis
+        self.lever = LeverArmEstimator(c.mount.lever_m)
         self.counts: Counter[str] = Counter()
         self._rng = np.random.default_rng(c.seed)
         self._held: deque[tuple[np.ndarray, np.ndarray, int]] = deque()
@@ -167,7 +168,7 @@ class TrajectoryPipeline:
         self._last_ns: int | None = None
         self._T_M_L, self._T_L_M = c.mount.T_M_L, c.mount.T_L_M
         records = int(c.record_s * 20.0)  # at up to 20 Hz
-        self._landmarks: deque[np.ndarray | None] = deque(maxlen=records)
+        self._landmarks: deque[np.ndarray | None] = deque(maxlen=records)  # T_O_L, the pelvis's at refine()
         self._between: deque[np.ndarray | None] = deque(maxlen=records)
         self._stamps: deque[int] = deque(maxlen=records)
 
@@ -178,8 +179,14 @@ class TrajectoryPipeline:
 
     @property
     def T_L_M(self) -> np.ndarray:
-        """(4, 4) the pelvis in the LiDAR frame as the mounting now stands (nominal, then levelled and turned)."""
+        """(4, 4) the pelvis in the LiDAR frame as the mounting now stands (nominal, then levelled, turned and its
+        lever arm moved)."""
         return self._T_L_M
+
+    @property
+    def lever_m(self) -> np.ndarray:
+        """(3,) the lever arm in use: the sensor's origin in the pelvis frame (m)."""
+        return self._T_M_L[:3, 3].copy()
 
     @property
     def status(self) -> str:
@@ -293,13 +300,13 @@ class TrajectoryPipeline:
                 scale = self.stride_scale.value if step.rejected else self.stride_scale.add(ref, lidar, between)
                 if not step.rejected and self.odometry.gravity is not None:  # the suit's T_Lprev_L, as SuitTrack's
                     self._turn_mount(registered, self._T_L_M @ between @ self._T_M_L)
+                    self._move_lever(ref, step.pose, suit[1], scale)
                 between[[0, 2], 3] *= scale
                 between[1, 3] = lidar[1, 3]  # the vertical (P's y) the suit does not know: the odometry's
-        landmark = None if step.rejected else T_O_P
         self._stamps.append(ref)
-        self._landmarks.append(landmark)
+        self._landmarks.append(None if step.rejected else step.pose)
         self._between.append(between)
-        fused = self.graph.add(ref, landmark, between)
+        fused = self.graph.add(ref, None if step.rejected else T_O_P, between)
         self._pending.append(_Registered(ref, step.pose, fused, step.rejected, step.correction_m,
                                          step.source_points, stamp_ns, step.points))
         if self._first is None:
@@ -356,18 +363,31 @@ class TrajectoryPipeline:
             self.mount_yaw_deg += float(np.degrees(angle))
             self._set_mount_rotation(self._T_M_L[:3, :3] @ axis_angle_to_matrix(-angle * axis))
 
+    def _move_lever(self, ref: int, T_O_L: np.ndarray, T_I_P: np.ndarray, scale: float) -> None:
+        """Feed one believed sweep to the lever arm's estimate; use the estimate when it moved."""
+        lever = self.lever.add(ref, T_O_L, T_I_P, self._T_M_L[:3, :3], scale)
+        if lever is not None:
+            T_M_L = self._T_M_L.copy()
+            T_M_L[:3, 3] = lever
+            self._set_mount(T_M_L)
+
     def _set_mount_rotation(self, R_M_L: np.ndarray) -> None:
         """Use this mounting rotation everywhere from now on."""
-        self._T_M_L = self._T_M_L.copy()
-        self._T_M_L[:3, :3] = R_M_L
-        self._T_L_M = np.linalg.inv(self._T_M_L)
-        self.suit.set_mount_rotation(R_M_L)
-        self.rotation.R_M_L = R_M_L
+        T_M_L = self._T_M_L.copy()
+        T_M_L[:3, :3] = R_M_L
+        self._set_mount(T_M_L)
+
+    def _set_mount(self, T_M_L: np.ndarray) -> None:
+        """Use this mounting everywhere from now on."""
+        self._T_M_L, self._T_L_M = T_M_L, np.linalg.inv(T_M_L)
+        self.suit.set_mount(T_M_L)
+        self.rotation.R_M_L = T_M_L[:3, :3]
 
     def refine(self) -> tuple[np.ndarray, np.ndarray]:
         """The recorded sweeps' stamps (N,) and pelvis poses T_map_P (N, 4, 4) from the whole graph solved at
-        once; empty before the map frame is fixed."""
+        once, its landmarks through the mounting as it stands at the end; empty before the map frame is fixed."""
         if self.map_frame is None or not self._stamps:
             return np.zeros(0, dtype=np.int64), np.zeros((0, 4, 4))
-        poses = fuse_batch(list(self._landmarks), list(self._between), self.config.graph)
+        landmarks = [None if T is None else T @ self._T_L_M for T in self._landmarks]
+        poses = fuse_batch(landmarks, list(self._between), self.config.graph)
         return np.array(self._stamps, dtype=np.int64), self.map_frame.T_map_O @ poses

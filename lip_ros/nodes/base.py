@@ -52,8 +52,8 @@ from lip_ros.middleware import use_lip_dds_profile
 from lip_ros.resources import params_path
 
 __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "numbers", "GraphNode", "LatencyWindow", "RELIABLE",
-           "BETWEEN_NODES", "IMU_INPUT", "SUIT_INPUT", "LATCHED", "node_defaults", "check_params_files", "run_nodes",
-           "FrameArrivals", "tf_publisher"]
+           "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input", "LATCHED", "node_defaults", "check_params_files",
+           "run_nodes", "FrameArrivals", "tf_publisher"]
 
 #: QoS of the graph's outputs.
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -64,11 +64,16 @@ BETWEEN_NODES = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: SensorDataQoS (best effort) for the 60 Hz IMUs, with room for the samples that arrive while a frame is processed.
 IMU_INPUT = QoSProfile(depth=50, reliability=qos_profile_sensor_data.reliability,
                        durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
-#: SensorDataQoS for the HSC4D suit's 100 Hz topics: 5 s deep, for a node's longest callback (the trajectory node
+#: seconds of the HSC4D suit's topics a subscription holds, for a node's longest callback (the trajectory node
 #: registering sweeps while the rest of its process wants the interpreter; the body node optimising a window:
 #: about a second measured for the first, more under load)
-SUIT_INPUT = QoSProfile(depth=500, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability,
-                        history=IMU_INPUT.history)
+SUIT_QUEUE_S = 5.0
+
+
+def suit_input(rate_hz: float) -> QoSProfile:
+    """SensorDataQoS for a suit topic of ``rate_hz``, :data:`SUIT_QUEUE_S` deep."""
+    return QoSProfile(depth=int(np.ceil(SUIT_QUEUE_S * rate_hz)), reliability=IMU_INPUT.reliability,
+                      durability=IMU_INPUT.durability, history=IMU_INPUT.history)
 
 
 class ParameterError(ValueError):

@@ -11,7 +11,8 @@ Baseline1 (suit only), Baseline2 (kiss-icp alone), the LiDAR odometry with
 the suit before the pose graph, the live fusion, the
 live fusion after the scene-aware optimisation, the offline refinement and the
 refinement without each loss term (the ablation); the clock offset found; the
-registrations not believed; the time per sweep, per optimisation window and of
+lever arm's horizontal error (estimated, and nominal); the registrations not
+believed; the time per sweep, per optimisation window and of
 the whole offline refinement; each map's distance to the true scene surface
 (median, p90): the live odometry's local map, the whole site's from the live
 trajectory (S_live) and from the refined one (S_opt).
@@ -31,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from lip_ros.hsc4d import evaluation as ev
+from lip_ros.hsc4d.mount import LeverArmEstimator
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 _LABELS = {"baseline1_suit": "Baseline1 (suit)", "baseline2_lidar": "Baseline2 (kiss-icp)",
@@ -106,11 +108,14 @@ def main(argv: list[str] | None = None) -> int:
         for name in metrics:
             metrics[name].update(body[name])
         path = float(np.sum(np.linalg.norm(np.diff(run.truth, axis=0), axis=1)))
+        horizontal = list(LeverArmEstimator.AXES)
         scene = ev.map_metrics(run, capture.terrain)
         report[seed] = {
             "map": scene,
             "metrics": metrics, "truth_sliding_m": body["truth"]["sliding_m"], "path_m": path,
             "offset_error_ms": (run.offset_ns - run.true_offset_ns) * 1e-6, "sole_m": run.sole_m,
+            "lever_error_m": float(np.linalg.norm((run.lever_m - run.true_lever_m)[horizontal])),
+            "nominal_lever_error_m": float(np.linalg.norm((run.nominal_lever_m - run.true_lever_m)[horizontal])),
             "not_believed": int(run.rejected.sum()), "sweeps": len(run.t_s),
             "sweep_ms_p50": float(np.median(run.sweep_ms)), "sweep_ms_p99": float(np.percentile(run.sweep_ms, 99)),
             "window_s_mean": float(np.mean(run.window_s)), "refine_s": run.refine_s,
@@ -119,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
         runs.append(run)
         r = report[seed]
         print(f"seed {seed}: {r['sweeps']} sweeps, path {path:.0f} m, clock offset off by "
-              f"{r['offset_error_ms']:+.1f} ms, {r['not_believed']} registrations not believed, "
+              f"{r['offset_error_ms']:+.1f} ms, lever arm off by {100 * r['lever_error_m']:.1f} cm horizontally "
+              f"(nominal {100 * r['nominal_lever_error_m']:.1f}), {r['not_believed']} registrations not believed, "
               f"sweep p50 {r['sweep_ms_p50']:.0f} ms p99 {r['sweep_ms_p99']:.0f} ms (the simulation runs between), "
               f"optimisation {r['window_s_mean']:.2f} s per window, the offline refinement {r['refine_s']:.1f} s "
               f"for {r['capture_s']:.0f} s, sole {100 * r['sole_m']:.1f} cm; "

@@ -1,13 +1,19 @@
 """The hip mounting's estimate (lip_ros.hsc4d.mount): levelled with gravity at the start, turned about the body's
-axis by walking."""
+axis by walking, its lever arm from the body's turns."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from lip_ros.hsc4d.mount import HipMountPrior, MountYawEstimator, levelled_mount_rotation, rotation_between
+from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, rot_x, rot_z
+from lip_ros.hsc4d.mount import (
+    HipMountPrior,
+    LeverArmEstimator,
+    MountYawEstimator,
+    levelled_mount_rotation,
+    rotation_between,
+)
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -62,3 +68,42 @@ def test_walking_turns_the_mounting_about_the_body_axis_onto_the_truth():
     assert estimator.windows >= 18
     assert abs(corrections[0] + 2.5) < 0.5  # registered steps turned by -2.5 deg from the prediction
     assert _angle_deg(true, estimate) < 0.2
+
+
+def _pose(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R, p
+    return out
+
+
+def test_the_lever_arm_comes_from_the_turns_of_walking_and_a_jump_does_not_spoil_it():
+    """60 s of walking at 10 Hz (1.2 m/s, turning, the hip yawing 5 deg each stride) with a sensor 2.5 cm
+    left and 2 cm behind its nominal place: registrations with 3 mm of noise, the suit's poses in its own world
+    (turned 40 deg) with a 3 % stride-scale error. The estimate of the horizontal lever comes within 5 mm of the
+    truth and the vertical stays nominal; a jump whose registrations are 5 cm off (the pelvis pitching 20 deg)
+    is left out, and the estimate is given once per 5 s at most."""
+    rng = np.random.default_rng(2)
+    prior = HipMountPrior()
+    true_lever = np.asarray(prior.lever_m) + [0.025, 0.01, -0.02]
+    T_M_L = _pose(prior.R_M_L, true_lever)
+    R_W_M0 = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # x left, y up, z forward in z-up W
+    estimator = LeverArmEstimator(prior.lever_m)
+    position, updates = np.zeros(3), []
+    for k in range(600):
+        t = k / 10.0
+        heading = 0.8 * np.sin(t / 5.0) + np.radians(5.0) * np.sin(2.0 * np.pi * t)
+        jump = 10.0 <= t < 11.0
+        R_W_M = rot_z(heading) @ R_W_M0 @ rot_x(np.radians(20.0 if jump else 2.0 * np.sin(4.0 * np.pi * t)))
+        position = position + 0.12 * np.array([np.cos(heading), np.sin(heading), 0.0])
+        T_W_L = _pose(R_W_M, position) @ T_M_L
+        T_W_L[:3, 3] += rng.normal(0.0, 0.003, 3) + (0.05 if jump else 0.0)
+        T_I_P = _pose(rot_z(0.7) @ R_W_M, rot_z(0.7) @ position * 1.03)
+        lever = estimator.add(int(t * 1e9), T_W_L, T_I_P, prior.R_M_L, 1.0 / 1.03)
+        if lever is not None:
+            updates.append((t, lever))
+    assert np.all(np.diff([t for t, _ in updates]) >= 5.0)
+    assert np.allclose(updates[-1][1], estimator.lever_m)
+    error = estimator.lever_m - true_lever
+    assert np.hypot(error[0], error[2]) < 0.005, error
+    assert estimator.lever_m[1] == prior.lever_m[1] and estimator.sigma_m[1] == 0.0
+    assert 0.0 < estimator.sigma_m[0] < 0.02 and estimator.intervals > 500  # the prior: 0.03

@@ -14,8 +14,8 @@ from lip_ros.hsc4d import sensors
 from lip_ros.hsc4d.mount import HipMountPrior
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig
 from lip_ros.hsc4d.suit_body import SuitBodyConfig
-from lip_ros.hsc4d.trajectory import SUIT_RATE_HZ, TrajectoryConfig
-from lip_ros.nodes.base import node_defaults
+from lip_ros.hsc4d.trajectory import TrajectoryConfig
+from lip_ros.nodes.base import SUIT_QUEUE_S, node_defaults, suit_input
 from lip_ros.nodes.fusion_node import BRANCHES, branch_of
 from lip_ros.nodes.hsc4d import HSC4D_PARAMS_FILE
 from lip_ros.nodes.hsc4d.graph import HSC4D_GRAPH
@@ -30,6 +30,15 @@ def test_every_node_parameter_has_one_shipped_default():
     assert set(doc) == {"/**", *(n.NAME for n in HSC4D_GRAPH)}
 
 
+@pytest.mark.parametrize("rate_hz", [60.0, 100.0, 240.0])
+def test_the_suit_buffers_hold_the_same_seconds_at_any_suit_rate(rate_hz: float):
+    """A suit at 60 or 240 Hz (real suits run at either): the trajectory's and the body's buffers still cover the
+    sweeps held until the jump across the largest clock offset, and the subscriptions' queues the same seconds."""
+    config = TrajectoryConfig(suit_rate_hz=rate_hz)
+    assert config.suit_capacity / rate_hz >= config.hold_s + config.jump.max_offset_s
+    assert suit_input(rate_hz).depth / rate_hz == pytest.approx(SUIT_QUEUE_S, abs=1.0 / rate_hz)
+
+
 def test_shipped_defaults_agree_with_the_ros_free_defaults_and_the_contract():
     trajectory = node_defaults(HSC4D_PARAMS_FILE, "hsc4d_trajectory_node")
     body = node_defaults(HSC4D_PARAMS_FILE, "hsc4d_body_node")
@@ -37,7 +46,7 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults_and_the_contract():
     assert tuple(trajectory["mount_lever_m"]) == mount.lever_m
     assert trajectory["mount_tilt_up_deg"] == mount.tilt_up_deg
     assert trajectory["hold_s"] == config.hold_s and trajectory["map_after_s"] == config.map_after_s
-    assert trajectory["suit_rate_hz"] == body["suit_rate_hz"] == SUIT_RATE_HZ
+    assert trajectory["suit_rate_hz"] == body["suit_rate_hz"] == config.suit_rate_hz
     assert trajectory["lidar_topic"] == sensors.HIP_LIDAR_TOPIC
     assert trajectory["suit_odometry_topic"] == body["suit_odometry_topic"] == sensors.SUIT_ODOMETRY_TOPIC
     assert trajectory["pelvis_imu_topic"] == sensors.suit_imu_topic("pelvis")

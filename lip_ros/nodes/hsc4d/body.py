@@ -57,17 +57,18 @@ from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
 from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body
+from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.nodes.base import (
     BETWEEN_NODES,
     LATCHED,
     RELIABLE,
-    SUIT_INPUT,
     GraphNode,
     LatencyWindow,
     Param,
     ParameterError,
     positive,
     run_nodes,
+    suit_input,
 )
 from lip_ros.nodes.hsc4d import HSC4D_PARAMS_FILE
 from lip_ros.nodes.hsc4d.trajectory import TrajectoryNode
@@ -117,7 +118,8 @@ class BodyNode(GraphNode):
         p = self.params
         gap_ns = int(p["max_imu_gap_s"] * 1e9)
         try:
-            self.body = SuitBody(load_skeleton(), SuitBodyConfig(body_scale=p["body_scale"] or 1.0,
+            capacity = TrajectoryConfig(suit_rate_hz=p["suit_rate_hz"]).suit_capacity
+            self.body = SuitBody(load_skeleton(), SuitBodyConfig(capacity=capacity, body_scale=p["body_scale"] or 1.0,
                                                                  max_gap_ns=gap_ns, max_hold_ns=gap_ns))
         except ValueError as exc:
             raise ParameterError(str(exc)) from exc
@@ -145,7 +147,7 @@ class BodyNode(GraphNode):
             self._opt_out = self._pose_publishers(OPTIMISED_TOPICS)
             self.create_subscription(PointCloud2, p["map_topic"], self._on_map, LATCHED, callback_group=self.group)
             self.add_input("suit odometry", p["suit_odometry_topic"], Odometry, p["suit_rate_hz"],
-                           self._on_suit_odometry, SUIT_INPUT)
+                           self._on_suit_odometry, suit_input(p["suit_rate_hz"]))
         self.create_subscription(Int64, p["offset_topic"], self._on_offset, LATCHED, callback_group=self.group)
         self.add_input("fused odometry", p["odometry_topic"], Odometry, p["lidar_rate_hz"], self._on_odometry,
                        BETWEEN_NODES)
@@ -154,7 +156,8 @@ class BodyNode(GraphNode):
         self._rejected: Counter[str] = Counter()  # suit samples, by reason
         for segment, topic in zip(self.body.segments, p["suit_imu_topics"]):
             self.add_input(f"suit {segment}", topic, Imu, p["suit_rate_hz"],
-                           lambda data, segment=segment: self._on_imu(segment, data), SUIT_INPUT, raw=True)
+                           lambda data, segment=segment: self._on_imu(segment, data), suit_input(p["suit_rate_hz"]),
+                           raw=True)
         self.create_timer(0.02, self._drain, self.group, clock=self.steady)
 
     def _pose_publishers(self, topics: Any) -> dict[str, Any]:

@@ -54,7 +54,6 @@ from lip_ros.nodes.base import (
     IMU_INPUT,
     LATCHED,
     RELIABLE,
-    SUIT_INPUT,
     GraphNode,
     LatencyWindow,
     Param,
@@ -62,6 +61,7 @@ from lip_ros.nodes.base import (
     numbers,
     positive,
     run_nodes,
+    suit_input,
     tf_publisher,
 )
 from lip_ros.nodes.hsc4d import HSC4D_PARAMS_FILE
@@ -124,7 +124,7 @@ class TrajectoryNode(GraphNode):
         try:
             self._config = TrajectoryConfig(
                 mount=HipMountPrior(tuple(map(float, p["mount_lever_m"])), float(p["mount_tilt_up_deg"])),
-                hold_s=float(p["hold_s"]), map_after_s=float(p["map_after_s"]))
+                hold_s=float(p["hold_s"]), map_after_s=float(p["map_after_s"]), suit_rate_hz=float(p["suit_rate_hz"]))
         except ValueError as exc:
             raise ParameterError(str(exc)) from exc
         self.pipeline = TrajectoryPipeline(self._config)
@@ -146,9 +146,10 @@ class TrajectoryNode(GraphNode):
         self._offset_pub = self.create_publisher(Int64, p["offset_topic"], LATCHED)
         self._tf_pub = tf_publisher(self) if p["publish_tf"] else None
         self.add_input("hip lidar", p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud, _CLOUD_INPUT)
-        self.add_input("suit pelvis imu", p["pelvis_imu_topic"], Imu, p["suit_rate_hz"], self._on_pelvis, SUIT_INPUT)
+        suit = suit_input(p["suit_rate_hz"])
+        self.add_input("suit pelvis imu", p["pelvis_imu_topic"], Imu, p["suit_rate_hz"], self._on_pelvis, suit)
         self.add_input("suit odometry", p["suit_odometry_topic"], Odometry, p["suit_rate_hz"], self._on_suit_odometry,
-                       SUIT_INPUT)
+                       suit)
         self.create_timer(0.02, self._drain, self.group, clock=self.steady)
         self.create_timer(p["map_period_s"], self._publish_map, self.group, clock=self.steady)
         self.get_logger().info("ready; waiting for the performer's jump to sync the suit's clock")
@@ -290,6 +291,8 @@ class TrajectoryNode(GraphNode):
             "suit clock offset (ms)": "unknown" if offset is None else f"{offset * 1e-6:.1f}",
             "mounting levelled by (deg)": f"{pipe.mount_levelled_deg:.2f}",
             "mounting turned about the body by (deg)": f"{pipe.mount_yaw_deg:.2f}",
+            "lever arm in the pelvis frame (m)": " ".join(f"{v:+.3f}" for v in pipe.lever_m),
+            "lever arm sigma (m)": " ".join(f"{v:.3f}" for v in pipe.lever.sigma_m),
             "stride scale of the suit": f"{pipe.stride_scale.value:.3f}",
             "odometry published": self._published,
             "restarts": self._restarts,
