@@ -24,6 +24,9 @@ import numpy as np
 from lip_ros.core.frames import hip_lidar_rotation
 from lip_ros.core.rotations import axis_angle_to_matrix
 
+#: the prior of the suit's stride scale in :class:`LeverArmEstimator` (about 1; loose, it is solved for)
+_SCALE_PRIOR = 0.2
+
 __all__ = ["HipMountPrior", "rotation_between", "levelled_mount_rotation", "MountYawEstimator", "LeverArmEstimator"]
 
 
@@ -123,34 +126,35 @@ class MountYawEstimator:
 class LeverArmEstimator:
     """The lever arm (the sensor's origin in the pelvis frame) from walking: the translation of hand-eye
     calibration. Over an interval of about ``span_s`` between two believed sweeps, the pelvis moves by t_P in its
-    own frame at the start (the suit's, times its stride scale k) and turns by R_P; the LiDAR rigid to it with
-    rotation R_M_L and lever l moves by t_L (in its own frame), and R_M_L t_L = t_P + (R_P - I) l. Only the two
+    own frame at the start (the suit's t_S times its stride scale k) and turns by R_P; the LiDAR rigid to it with
+    rotation R_M_L and lever l moves by t_L (in its own frame), and R_M_L t_L = k t_S + (R_P - I) l. Only the two
     horizontal directions are used (the suit knows no stairs), so only the turn about the vertical shows the
-    lever, and only its horizontal parts (x, z of the pelvis frame); its vertical part stays nominal. Intervals
-    over which the pelvis tilted by more than ``max_tilt_deg`` (a jump, bending down: fast motion that both
-    sensors follow worst) are left out. The estimate is the least-squares solution over every interval so far
-    with a prior of ``prior_m`` (per axis) on the nominal lever, each interval's horizontal misfit taken as
-    ``noise_m``; :meth:`add` returns it once per ``update_s`` of intervals when it moved by more than
-    ``min_change_m``. Memory: the sweeps of the last ``2 span_s`` and a 2 x 2 system."""
+    lever, and only its horizontal parts (x, z of the pelvis frame); its vertical part stays nominal. k is
+    solved for with the lever (one for the capture; a scale error of 1 % is 1 cm over a 1 s interval, as much
+    as the lever shows in a turn, so a scale from elsewhere would pull the lever aside). The estimate is the
+    least-squares solution over every interval so far with a prior of ``prior_m`` (per axis) on the nominal
+    lever, each interval's horizontal misfit taken as ``noise_m``;
+    :meth:`add` returns it once per ``update_s`` of intervals, once its standard deviation is under
+    ``max_sigma_m`` on both axes, when it moved by more than ``min_change_m``. Memory: the sweeps of the last
+    ``2 span_s`` and a 3 x 3 system."""
 
     #: the lever's axes estimated: x (left) and z (forward) of the pelvis frame
     AXES = (0, 2)
 
     def __init__(self, nominal_m: tuple[float, float, float], span_s: float = 1.0, prior_m: float = 0.03,
-                 noise_m: float = 0.03, max_tilt_deg: float = 5.0, update_s: float = 5.0,
+                 noise_m: float = 0.03, update_s: float = 5.0, max_sigma_m: float = 0.01,
                  min_change_m: float = 0.002) -> None:
-        if not (span_s > 0.0 and prior_m > 0.0 and noise_m > 0.0 and max_tilt_deg > 0.0 and update_s > 0.0
+        if not (span_s > 0.0 and prior_m > 0.0 and noise_m > 0.0 and update_s > 0.0 and max_sigma_m > 0.0
                 and min_change_m >= 0.0):
-            raise ValueError(f"invalid span {span_s}, prior {prior_m}, noise {noise_m}, tilt {max_tilt_deg}, "
-                             f"update {update_s} or change {min_change_m}")
+            raise ValueError(f"invalid span {span_s}, prior {prior_m}, noise {noise_m}, update {update_s}, "
+                             f"sigma {max_sigma_m} or change {min_change_m}")
         self.span_ns, self.update_ns = int(span_s * 1e9), int(update_s * 1e9)
         self.nominal = np.asarray(nominal_m, dtype=np.float64)
-        self.min_change_m = min_change_m
-        self._cos_tilt = float(np.cos(np.radians(max_tilt_deg)))
-        prior = np.eye(2) / prior_m**2
+        self.max_sigma_m, self.min_change_m = max_sigma_m, min_change_m
+        prior = np.diag([1.0 / prior_m**2, 1.0 / prior_m**2, 1.0 / _SCALE_PRIOR**2])  # lever x, z and k
         self._weight = 1.0 / noise_m**2
-        self._normal = prior.copy()
-        self._rhs = prior @ self.nominal[list(self.AXES)]
+        self._normal = prior
+        self._rhs = prior @ np.array([*self.nominal[list(self.AXES)], 1.0])
         self._recent: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
         self._last_update_ns: int | None = None
         self.lever_m = self.nominal.copy()  #: the estimate last returned
@@ -160,14 +164,18 @@ class LeverArmEstimator:
     def sigma_m(self) -> np.ndarray:
         """(3,) the standard deviation of the estimate per axis (m) as the model has it; 0 where held nominal."""
         out = np.zeros(3)
-        out[list(self.AXES)] = np.sqrt(np.diag(np.linalg.inv(self._normal)))
+        out[list(self.AXES)] = np.sqrt(np.diag(np.linalg.inv(self._normal))[:2])
         return out
 
-    def add(self, stamp_ns: int, T_O_L: np.ndarray, T_I_P: np.ndarray, R_M_L: np.ndarray, scale: float
-            ) -> np.ndarray | None:
+    @property
+    def scale(self) -> float:
+        """The suit's stride scale solved for with the lever (LiDAR per suit)."""
+        return float(np.linalg.solve(self._normal, self._rhs)[2])
+
+    def add(self, stamp_ns: int, T_O_L: np.ndarray, T_I_P: np.ndarray, R_M_L: np.ndarray) -> np.ndarray | None:
         """One believed sweep: the LiDAR's registered pose (4, 4) in its odometry frame, the suit's pelvis pose
-        (4, 4) in the suit's world, the mounting's rotation in use and the suit's stride scale (LiDAR per suit);
-        the new lever (3,) when an update is due and it moved, else None."""
+        (4, 4) in the suit's world and the mounting's rotation in use; the new lever (3,) when an update is due
+        and it moved, else None."""
         recent = self._recent
         recent.append((int(stamp_ns), np.asarray(T_O_L, dtype=np.float64), np.asarray(T_I_P, dtype=np.float64)))
         while len(recent) > 1 and recent[1][0] <= stamp_ns - self.span_ns:
@@ -175,30 +183,27 @@ class LeverArmEstimator:
         start_ns, L0, P0 = recent[0]
         if not self.span_ns <= stamp_ns - start_ns <= 2 * self.span_ns:
             return None
-        P1 = recent[-1][2]
-        up = P0[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the suit's up in the pelvis frame, at the start ...
-        if up @ P1[:3, :3].T @ np.array([0.0, 0.0, 1.0]) < self._cos_tilt:  # ... and at the end
-            return None
+        up = P0[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the suit's up in the pelvis frame
         side = np.cross(up, [0.0, 0.0, 1.0])  # the pelvis frame's z is forward: across it, horizontally
         if np.linalg.norm(side) < 0.5:  # bent over by more than 60 deg: no pelvis frame horizontal to use
             return None
         side /= np.linalg.norm(side)
         H = np.stack([side, np.cross(up, side)])  # (2, 3) the horizontal directions
         A = np.linalg.inv(L0) @ recent[-1][1]  # T_L0_L1
-        B = np.linalg.inv(P0) @ P1  # T_P0_P1, the suit's
-        J = H @ (R_M_L @ A[:3, :3] @ R_M_L.T - np.eye(3))
-        y = H @ (R_M_L @ A[:3, 3] - scale * B[:3, 3]) - J[:, 1] * self.nominal[1]
-        J = J[:, list(self.AXES)]
+        B = np.linalg.inv(P0) @ recent[-1][2]  # T_P0_P1, the suit's
+        turn = H @ (R_M_L @ A[:3, :3] @ R_M_L.T - np.eye(3))
+        J = np.column_stack([turn[:, list(self.AXES)], H @ B[:3, 3]])
+        y = H @ R_M_L @ A[:3, 3] - turn[:, 1] * self.nominal[1]
         self._normal += self._weight * J.T @ J
         self._rhs += self._weight * J.T @ y
         self.intervals += 1
         if self._last_update_ns is None:
             self._last_update_ns = int(stamp_ns)
-        if stamp_ns - self._last_update_ns < self.update_ns:
+        if stamp_ns - self._last_update_ns < self.update_ns or self.sigma_m.max() > self.max_sigma_m:
             return None
         self._last_update_ns = int(stamp_ns)
         lever = self.nominal.copy()
-        lever[list(self.AXES)] = np.linalg.solve(self._normal, self._rhs)
+        lever[list(self.AXES)] = np.linalg.solve(self._normal, self._rhs)[:2]
         if np.linalg.norm(lever - self.lever_m) <= self.min_change_m:
             return None
         self.lever_m = lever

@@ -300,7 +300,7 @@ class TrajectoryPipeline:
                 scale = self.stride_scale.value if step.rejected else self.stride_scale.add(ref, lidar, between)
                 if not step.rejected and self.odometry.gravity is not None:  # the suit's T_Lprev_L, as SuitTrack's
                     self._turn_mount(registered, self._T_L_M @ between @ self._T_M_L)
-                    self._move_lever(ref, step.pose, suit[1], scale)
+                    self._move_lever(ref, step.pose, suit[1])
                 between[[0, 2], 3] *= scale
                 between[1, 3] = lidar[1, 3]  # the vertical (P's y) the suit does not know: the odometry's
         self._stamps.append(ref)
@@ -363,9 +363,9 @@ class TrajectoryPipeline:
             self.mount_yaw_deg += float(np.degrees(angle))
             self._set_mount_rotation(self._T_M_L[:3, :3] @ axis_angle_to_matrix(-angle * axis))
 
-    def _move_lever(self, ref: int, T_O_L: np.ndarray, T_I_P: np.ndarray, scale: float) -> None:
+    def _move_lever(self, ref: int, T_O_L: np.ndarray, T_I_P: np.ndarray) -> None:
         """Feed one believed sweep to the lever arm's estimate; use the estimate when it moved."""
-        lever = self.lever.add(ref, T_O_L, T_I_P, self._T_M_L[:3, :3], scale)
+        lever = self.lever.add(ref, T_O_L, T_I_P, self._T_M_L[:3, :3])
         if lever is not None:
             T_M_L = self._T_M_L.copy()
             T_M_L[:3, 3] = lever
