@@ -79,8 +79,10 @@ MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their 
 CALIBRATION_FRAMES = f"{CalibrationNode.NAME}: frames"  # ... with the DOT latencies
 OFFSET_VALUE = "suit clock offset (ms)"  # of the HSC4D trajectory node's frames status
 CATCH_UP_PREFIX = "catch_up_latency_ms_"  # ... its latency of the sweeps that waited behind the backlog
-#: after every frame is accounted for, how long the HSC4D body node may take to optimise its last, partial window
-_OPTIMISATION_WAIT_S = 10.0
+#: after every frame is accounted for, how long the HSC4D graph may take to settle: the last sweep waiting for the
+#: suit (1 s) in the trajectory node, then on its way to the body node, waiting there (1 s), the partial window
+#: flushed (1 s) and optimised
+_SETTLE_WAIT_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -125,6 +127,7 @@ class ProcessSummary:
 
     frames_in: int
     frames: dict[str, int]  # "pose", "calibrating", "skipped: <reason>", "pending" -> frames
+    received: int | None = None  # clouds the graph's first node took in (the rest were lost in transport)
     latency_ms: dict[str, float] = field(default_factory=dict)
     latency_of: str = "pose published"  # what the latency runs to from the cloud's receipt
     matched: int = 0  # poses with a /gt pose at the same stamp
@@ -144,8 +147,12 @@ class ProcessSummary:
     def lines(self) -> list[str]:
         """Human-readable report."""
         unaccounted = self.frames_in - sum(self.frames.values())
+        lost = ""
+        if self.received is not None:
+            lost = (f" (lost in transport: the graph received {self.received} of the {self.frames_in} clouds)"
+                    if self.received < self.frames_in else " (every cloud was received)")
         out = [f"frames in: {self.frames_in}; " + ", ".join(f"{k} {v}" for k, v in sorted(self.frames.items()))
-               + (f"; not accounted for {unaccounted}" if unaccounted else "")]
+               + (f"; not accounted for {unaccounted}{lost}" if unaccounted else "")]
         if self.latency_ms:
             out.append(f"latency (cloud received -> {self.latency_of}): "
                        + ", ".join(f"{k} {v:.1f} ms" for k, v in self.latency_ms.items()))
@@ -183,9 +190,12 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined
                       ) -> ProcessSummary:
     """Frame accounting (last /diagnostics of the nodes) and accuracy against the inputs' truth (HSC4D: also of
     the offline refinement's bag ``refined``, if given)."""
-    last = {}  # status name -> its last values
+    last, received = {}, {}  # status name -> its last values; ... of the LiDAR's inputs -> clouds received
     for m in read_messages(outputs, ["/diagnostics"]):
-        last.update((s.name, s.values) for s in msg_to_diagnostics(m.msg).statuses)
+        for s in msg_to_diagnostics(m.msg).statuses:
+            last[s.name] = s.values
+            if s.hardware_id == branch.lidar and "received" in s.values:
+                received[s.name] = int(s.values["received"])
     if branch.latency_status not in last:
         raise ToolError(f"{outputs} holds no diagnostics of the {branch.name} graph ({branch.latency_status})")
     frames = {k.removeprefix("frames "): int(v) for name, values in last.items() if name.endswith(": frames")
@@ -195,7 +205,8 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined
         frames["pending"] = pending
     latency = {k.removeprefix(branch.latency_prefix): float(v) for k, v in last[branch.latency_status].items()
                if k.startswith(branch.latency_prefix)}
-    summary = ProcessSummary(bag_topics(inputs)[branch.lidar].count, frames, latency, branch.latency_of,
+    summary = ProcessSummary(bag_topics(inputs)[branch.lidar].count, frames, max(received.values(), default=None),
+                             latency, branch.latency_of,
                              dot_latency=last.get(CALIBRATION_FRAMES, {}).get(DOT_LATENCY_VALUE, ""))
     if branch is HSC4D:
         offset = next((v.get(OFFSET_VALUE) for v in last.values() if OFFSET_VALUE in v), "")
@@ -277,8 +288,10 @@ class _Watch:
         self.last_clock: float | None = None
         self.last_pose: float | None = None
         self.accounted = 0  # frames with an outcome or pending, per the nodes' last diagnostics
+        self.pending = 0  # ... of which pending
         self.optimising = 0  # frames waiting for the HSC4D body node's scene-aware optimisation
         self._counts: dict[str, int] = {}  # "<node>: frames" -> frames accounted for there
+        self._pending: dict[str, int] = {}  # ... of which pending
         self.node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, CLOCK_QOS)
         self.node.create_subscription(PoseStamped, pose_topic, self._on_pose,
                                       QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
@@ -298,9 +311,11 @@ class _Watch:
             if s.name.endswith(": frames"):
                 self._counts[s.name] = sum(int(v) for k, v in s.values.items()
                                            if k.startswith("frames ") or k == "pending")
+                self._pending[s.name] = int(s.values.get("pending", 0))
                 if "optimisation: frames waiting" in s.values:
                     self.optimising = int(s.values["optimisation: frames waiting"])
         self.accounted = sum(self._counts.values())
+        self.pending = sum(self._pending.values())
 
     def spin_while(self, busy: Callable[[], bool], timeout_s: float) -> None:
         """Take messages while ``busy()`` and for at most ``timeout_s``."""
@@ -379,8 +394,12 @@ def _run(argv: list[str]) -> int:
         if play.returncode != 0:
             raise ToolError("lip_bag_play failed")
         watch.spin_while(lambda: watch.accounted < frames_in and node.poll() is None, args.timeout)
+
+        def settled() -> bool:  # HSC4D: the last sweep may be pending in one node and on its way to the next
+            return watch.optimising == 0 and (branch is LIP or (watch.pending == 0 and watch.accounted >= frames_in))
+
+        watch.spin_while(lambda: not settled() and node.poll() is None, _SETTLE_WAIT_S)
         time.sleep(1.0)  # one more diagnostics period reaches the recorder
-        watch.spin_while(lambda: watch.optimising > 0 and node.poll() is None, _OPTIMISATION_WAIT_S)
     finally:
         for proc in reversed(procs):  # the player if still running, the recorder, the node
             proc.send_signal(signal.SIGINT)

@@ -206,7 +206,9 @@ class TrajectoryNode(GraphNode):
             self._take(self._waiting.popleft())
             taken = True
         if not taken and now - self._last_received >= self.params["suit_wait_s"]:  # no sweeps coming in
-            for step in self.pipeline.catch_up(1):
+            steps = self.pipeline.catch_up(1)
+            self._count_drops()
+            for step in steps:
                 self._publish(step, self._received.pop(step.sweep_ns, None))
 
     def _take(self, sweep: _Sweep) -> None:
@@ -231,12 +233,16 @@ class TrajectoryNode(GraphNode):
             offset = int(self.pipeline.offset_ns)
             self._offset_pub.publish(Int64(data=offset))
             self.get_logger().info(f"jump seen: the suit's clock is {offset * 1e-6:+.1f} ms from the LiDAR's")
+        self._count_drops()
+        for step in steps:
+            self._publish(step, self._received.pop(step.sweep_ns, None))
+
+    def _count_drops(self) -> None:
+        """Count the sweeps the pipeline dropped since the last call as skipped frames."""
         for key, what in _DROPPED.items():
             for _ in range(self.pipeline.counts[key] - self._dropped[key]):
                 self.count_frame(what)
             self._dropped[key] = self.pipeline.counts[key]
-        for step in steps:
-            self._publish(step, self._received.pop(step.sweep_ns, None))
 
     def _restart(self, stamp_ns: int) -> None:
         """The clock went back: a new trajectory (the sweeps waiting in the old one are counted as skipped)."""
