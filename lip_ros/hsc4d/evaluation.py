@@ -9,11 +9,12 @@ sent before then) and collects, per sweep the pipeline output, the pelvis of
 * **Baseline1**, the suit alone (its ``/mocap/odometry``),
 * **Baseline2**, LiDAR-only odometry: kiss-icp as it ships
   (:class:`~lip_ros.hsc4d.lidar_odometry.KissIcpAlone`, the wearer's returns
-  removed), its sensor poses through the levelled mounting, anchored on the
-  live trajectory's first sweep; no IMU, no suit, no graph,
+  removed), its sensor poses through the mounting as the live pipeline had it
+  at each sweep, anchored on the live trajectory's first sweep; no IMU, no
+  suit, no graph,
 * the **LiDAR odometry with the suit**: the live pipeline's own odometry (the
   pelvis IMU's rotation and the suit's motion in deskew, initial guess and
-  speed rule) before the pose graph,
+  speed rule) before the pose graph, through the mounting as it then stood,
 * the **live** fused trajectory, and the **live optimised** one: after the
   scene-aware optimisation (:mod:`~lip_ros.hsc4d.scene_optimisation`) window by
   window, each on the live odometry's local map as it stood when the window's
@@ -166,10 +167,11 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
     refined = refiner.refine()
     kiss_poses = np.array([lidar_only[ns] for ns in live.sweeps_ns])
     anchor = live.lidar[0] @ np.linalg.inv(kiss_poses[0])  # T_map_O of kiss-icp's odometry frame
+    T_L_M = np.linalg.inv(live.lidar) @ live.lidar_pelvis  # the mounting as each sweep had it
     poses = {
         "baseline1_suit": live.suit_pelvis,
-        "baseline2_lidar": anchor @ kiss_poses @ pipeline.T_L_M,
-        "lidar_with_suit": live.lidar @ pipeline.T_L_M,
+        "baseline2_lidar": anchor @ kiss_poses @ T_L_M,
+        "lidar_with_suit": live.lidar_pelvis,
         "live": live.pelvis,
         "refined_graph": refined.graph,
         "refined": refined.pelvis,

@@ -54,7 +54,8 @@ class RefinementConfig:
 @dataclass(frozen=True)
 class LiveRecord:
     """The live outputs kept for the refinement, per sweep posed (N): reference times (LiDAR clock), the stamps the
-    sweeps came with, the fused pelvis T_map_P and the odometry's sensor pose T_map_L (N, 4, 4), why a
+    sweeps came with, the fused pelvis T_map_P, the odometry's sensor pose T_map_L and the pelvis through the
+    mounting as it then stood (N, 4, 4), why a
     registration was not believed (N,), the body on the fused pelvis, the suit's own pelvis pose (in its world)
     and its body on it."""
 
@@ -62,6 +63,7 @@ class LiveRecord:
     sweeps_ns: np.ndarray
     pelvis: np.ndarray
     lidar: np.ndarray
+    lidar_pelvis: np.ndarray
     rejected: np.ndarray
     body: BodyPose
     suit_pelvis: np.ndarray
@@ -100,7 +102,7 @@ class CaptureRefiner:
         self.site = SiteMap(c.site_map)
         self.counts: Counter[str] = Counter()  #: frames not kept for the refinement, by reason
         self._feet = [self.body.skeleton.index(f) for f in FEET]
-        self._steps: list[tuple[int, int, np.ndarray, np.ndarray, str]] = []  # of each step: all but its points
+        self._steps: list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray, str]] = []  # each step but its points
         self._bodies: list[BodyPose] = []
         self._suit: list[tuple[np.ndarray, np.ndarray]] = []  # the suit's pelvis pose and joints
         self._scaled = False
@@ -141,16 +143,17 @@ class CaptureRefiner:
             self.counts[f"not refined: {why or 'no suit odometry near the sweep'}"] += 1
             return
         self.site.add(step.points, step.lidar, len(self._steps))
-        self._steps.append((step.stamp_ns, step.sweep_ns, step.pelvis, step.lidar, step.rejected))
+        self._steps.append((step.stamp_ns, step.sweep_ns, step.pelvis, step.lidar, step.lidar_pelvis, step.rejected))
         self._bodies.append(body)
         self._suit.append((T_suit, suit.joints))
 
     @property
     def record(self) -> LiveRecord:
         """The live outputs kept so far."""
-        stamps, sweeps, pelvis, lidar, rejected = zip(*self._steps, strict=True) if self._steps else ([],) * 5
+        stamps, sweeps, pelvis, lidar, lidar_pelvis, rejected = (zip(*self._steps, strict=True) if self._steps
+                                                                  else ([],) * 6)
         return LiveRecord(np.array(stamps, dtype=np.int64), np.array(sweeps, dtype=np.int64),
-                          np.array(pelvis).reshape(-1, 4, 4), np.array(lidar).reshape(-1, 4, 4),
+                          *(np.array(a).reshape(-1, 4, 4) for a in (pelvis, lidar, lidar_pelvis)),
                           np.array(rejected, dtype=object), _stack(self._bodies),
                           np.array([s[0] for s in self._suit]).reshape(-1, 4, 4),
                           np.array([s[1] for s in self._suit]))

@@ -88,8 +88,9 @@ class TrajectoryConfig:
 
 @dataclass(frozen=True)
 class TrajectoryStep:
-    """One sweep's output: its reference time (LiDAR clock), the fused pelvis pose T_map_P and the odometry's
-    sensor pose T_map_L (4, 4) each, why the registration was not believed ("" if it was), how far it moved the
+    """One sweep's output: its reference time (LiDAR clock), the fused pelvis pose T_map_P, the odometry's sensor
+    pose T_map_L and the pelvis the odometry alone places through the mounting as it then stood (4, 4) each, why
+    the registration was not believed ("" if it was), how far it moved the
     initial guess (m), how many points it registered, the stamp the sweep was given to
     :meth:`TrajectoryPipeline.add_sweep` with, and its points deskewed to the reference time in L (M, 3), the
     wearer's removed."""
@@ -97,6 +98,7 @@ class TrajectoryStep:
     stamp_ns: int
     pelvis: np.ndarray
     lidar: np.ndarray
+    lidar_pelvis: np.ndarray
     rejected: str
     correction_m: float
     source_points: int
@@ -135,6 +137,7 @@ class StrideScale:
 class _Registered:
     stamp_ns: int
     T_O_L: np.ndarray
+    T_O_P: np.ndarray
     fused_T_O_P: np.ndarray
     rejected: str
     correction_m: float
@@ -307,7 +310,7 @@ class TrajectoryPipeline:
         self._landmarks.append(None if step.rejected else step.pose)
         self._between.append(between)
         fused = self.graph.add(ref, None if step.rejected else T_O_P, between)
-        self._pending.append(_Registered(ref, step.pose, fused, step.rejected, step.correction_m,
+        self._pending.append(_Registered(ref, step.pose, T_O_P, fused, step.rejected, step.correction_m,
                                          step.source_points, stamp_ns, step.points))
         if self._first is None:
             self._first = self._pending[0]
@@ -317,7 +320,7 @@ class TrajectoryPipeline:
                 self.counts["sweeps dropped waiting for the map frame"] += 1
             return []
         T = self.map_frame.T_map_O
-        out = [TrajectoryStep(r.stamp_ns, T @ r.fused_T_O_P, T @ r.T_O_L, r.rejected, r.correction_m,
+        out = [TrajectoryStep(r.stamp_ns, T @ r.fused_T_O_P, T @ r.T_O_L, T @ r.T_O_P, r.rejected, r.correction_m,
                               r.source_points, r.sweep_ns, r.points) for r in self._pending]
         self._pending.clear()
         return out
