@@ -5,8 +5,8 @@
 - ROS (rclpy and the message packages) only in ``lip_ros.nodes``, ``lip_ros.tools`` and the rclpy backend of
   ``lip_msgs_py``; the ROS-free packages never import the nodes or tools either.
 - Heavy libraries only in the modules that wrap them: torch in the LIP networks, their training, the
-  torch kinematics and the HSC4D scene-aware optimisation; kiss-icp and gtsam each in one module of the
-  HSC4D branch; embreex in the rig's mesh ray casting.
+  torch kinematics, the torch thread count and the HSC4D scene-aware optimisation; kiss-icp and gtsam each in
+  one module of the HSC4D branch; embreex in the rig's mesh ray casting.
 - Every installed executable starts in ``lip_ros.nodes`` or ``lip_ros.tools``.
 """
 
@@ -30,8 +30,8 @@ ROS_ALLOWED = ("lip_ros.nodes", "lip_ros.tools", "lip_msgs_py.backend")
 ROS_FREE = ("lip_ros.core", "lip_ros.lip", "lip_ros.hsc4d", "lip_ros.rig")
 #: Heavy library -> the modules (or packages) allowed to import it, and how many modules may.
 HEAVY = {
-    "torch": (("lip_ros.core.torch_kinematics", "lip_ros.lip.nets", "lip_ros.lip.train",
-               "lip_ros.hsc4d.scene_optimisation"), None),
+    "torch": (("lip_ros.core.torch_kinematics", "lip_ros.core.torch_runtime", "lip_ros.lip.nets",
+               "lip_ros.lip.train", "lip_ros.hsc4d.scene_optimisation"), None),
     "kiss_icp": (("lip_ros.hsc4d",), 1),
     "gtsam": (("lip_ros.hsc4d",), 1),
     "embreex": (("lip_ros.rig.mesh_raycast",), 1),

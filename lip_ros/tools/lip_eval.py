@@ -22,10 +22,11 @@ from lip_ros.bagio import BagError
 from lip_ros.core.body import BodyModel
 from lip_ros.core.body_surface import BodySurface
 from lip_ros.core.skeleton import load_skeleton
+from lip_ros.core.torch_runtime import set_threads
 from lip_ros.lip.evaluation.captures import find_captures, heldout_configs, load_capture, make_heldout_set
 from lip_ros.lip.evaluation.evaluate import MODES, SURFACE_POINTS, CaptureEvaluation, evaluate_capture
 from lip_ros.lip.evaluation.report import OURS, VARIANTS, build_report, plot_report, to_markdown
-from lip_ros.lip.nets.lip_model import SHIPPED_WEIGHTS, LipModel, set_threads
+from lip_ros.lip.nets.lip_model import SHIPPED_WEIGHTS, LipModel
 from lip_ros.lip.train.rigdata import EVAL_SEED_MIN
 from lip_ros.resources import params_dir
 

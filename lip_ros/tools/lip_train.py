@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from lip_ros.core.torch_runtime import set_threads
 from lip_ros.lip.nets.config import VARIANTS, LipConfig
-from lip_ros.lip.nets.lip_model import LipModel, set_threads
+from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.train.dataset import blank_frames, prepare
 from lip_ros.lip.train.rigdata import (
     DEFAULT_DATA_DIR,

@@ -34,15 +34,10 @@ from lip_ros.lip.nets.models import LipNet, State
 from lip_ros.lip.nets.preprocess import FrameInput, Preprocessor
 from lip_ros.resources import params_dir
 
-__all__ = ["LipOutput", "LipModel", "SHIPPED_WEIGHTS", "stack_frames", "set_threads"]
+__all__ = ["LipOutput", "LipModel", "SHIPPED_WEIGHTS", "stack_frames"]
 
 #: Stem of the shipped weights in the package's ``params/weights/``.
 SHIPPED_WEIGHTS = "lip_small"
-
-
-def set_threads(count: int) -> None:
-    """Run the networks on ``count`` CPU threads (1 is the fastest for these small networks on a busy machine)."""
-    torch.set_num_threads(count)
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,7 @@ from lip_msgs_py import (
 from lip_msgs_py.cdr import cdr_stamp, imu_samples
 from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
+from lip_ros.core.torch_runtime import set_threads
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
 from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body
@@ -111,6 +112,8 @@ class BodyNode(GraphNode):
         "optimise_window": Param("frames per scene-aware optimisation window (0: no optimisation)",
                                  lambda v: None if v == 0 or v >= 3 else f"must be 0 or >= 3, got {v}"),
         "optimise_flush_s": Param("a partial window is optimised once no fused pose came for this long", positive),
+        "optimise_threads": Param("torch's CPU threads for the optimisation (1: the other core stays the trajectory "
+                                  "node's)", positive),
     }
 
     def __init__(self, **kwargs: Any) -> None:
@@ -132,6 +135,7 @@ class BodyNode(GraphNode):
         self._out = self._pose_publishers(HSC4D_TOPICS)
         self._optimiser = None
         if p["optimise_window"]:
+            set_threads(p["optimise_threads"])
             self._optimiser = SceneOptimiser(replace(SceneOptimisationConfig(), window=p["optimise_window"]))
             self._window: list[tuple[int, str, BodyPose, np.ndarray]] = []  # the frames in the optimiser
             self._feet = [self.body.skeleton.index(f) for f in _FEET]
