@@ -122,7 +122,6 @@ class MountYawEstimator:
         return float(np.clip(angle, -self.max_correction, self.max_correction))
 
 
-
 class LeverArmEstimator:
     """The lever arm (the sensor's origin in the pelvis frame) from walking: the translation of hand-eye
     calibration. Over an interval of about ``span_s`` between two believed sweeps, the pelvis moves by t_P in its

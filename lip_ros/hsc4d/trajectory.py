@@ -171,7 +171,7 @@ class TrajectoryPipeline:
         self._last_ns: int | None = None
         self._T_M_L, self._T_L_M = c.mount.T_M_L, c.mount.T_L_M
         records = int(c.record_s * 20.0)  # at up to 20 Hz
-        self._landmarks: deque[np.ndarray | None] = deque(maxlen=records)  # T_O_L, the pelvis's at refine()
+        self._landmarks: deque[np.ndarray | None] = deque(maxlen=records)  # T_O_L (the mounting applied in refine())
         self._between: deque[np.ndarray | None] = deque(maxlen=records)
         self._stamps: deque[int] = deque(maxlen=records)
 
