@@ -1,9 +1,12 @@
 """hsc4d_body_node: the suit's 17 segments on the fused pelvis trajectory, as the contract's pose outputs in ``map``.
 
 For each fused pelvis pose of ``hsc4d_trajectory_node`` (``/hsc4d/odometry``)
-it waits (at most ``suit_wait_s``) until every suit segment has a sample at
+it waits until every suit segment has a sample at
 that moment on the suit's clock (the pose's stamp plus the offset
 ``hsc4d_trajectory_node`` found from the jump, ``/hsc4d/suit_clock_offset``),
+(``suit_wait_s`` at most, or as long as the segments it waits for are still
+sending, up to the suit queues' depth: a node that was busy works off the
+samples queued meanwhile before its poses give up on them),
 poses the body (:class:`lip_ros.hsc4d.suit_body.SuitBody`) and publishes
 ``/hsc4d/joint_states``, ``/hsc4d/root_pose`` and ``/hsc4d/joint_poses`` with
 the pose's stamp. The skeleton is the contract's scaled by ``body_scale``;
@@ -63,6 +66,7 @@ from lip_ros.nodes.base import (
     BETWEEN_NODES,
     LATCHED,
     RELIABLE,
+    SUIT_QUEUE_S,
     GraphNode,
     LatencyWindow,
     Param,
@@ -102,7 +106,8 @@ class BodyNode(GraphNode):
         "offset_topic": Param("input (latched): the suit's clock offset of hsc4d_trajectory_node"),
         "body_scale": Param("the performer's size relative to the contract skeleton (0 = from the standing pelvis "
                             "height of the first fused pose)", lambda v: None if v >= 0 else f"must be >= 0, got {v}"),
-        "suit_wait_s": Param("a pose waits at most this long after arriving for every segment's sample", positive),
+        "suit_wait_s": Param("a pose waits this long after arriving for every segment's sample; longer (up to the "
+                             "suit queues' 5 s) while the segments it waits for still send", positive),
         "max_waiting_poses": Param("poses that may wait for the suit; the oldest goes on with what there is",
                                    positive),
         "max_imu_gap_s": Param("widest gap between two suit samples interpolated across", positive),
@@ -157,6 +162,7 @@ class BodyNode(GraphNode):
                        BETWEEN_NODES)
         self._raw: dict[str, list[bytes]] = {s: [] for s in self.body.segments}  # not decoded yet
         self._newest: dict[str, int] = {}  # each segment's newest stamp received
+        self._arrived: dict[str, float] = {}  # ... and when its last sample came (monotonic s)
         self._rejected: Counter[str] = Counter()  # suit samples, by reason
         for segment, topic in zip(self.body.segments, p["suit_imu_topics"]):
             self.add_input(f"suit {segment}", topic, Imu, p["suit_rate_hz"],
@@ -237,13 +243,17 @@ class BodyNode(GraphNode):
                 self._map_failed = self._map
                 self.get_logger().info(f"optimisation waits for a later map: {exc}")
                 return
-            blocked = time.monotonic() - start
-            self._window_latency.add(blocked)
-            # the suit's samples could not come in meanwhile (this callback held the node): the poses waiting for
-            # them wait that much longer, rather than go on with a gap the samples still queued would fill (a CI
-            # run lost 2 poses to "suit data missing" right after the first window)
-            self._waiting = deque((*w[:4], w[4] + blocked) for w in self._waiting)
+            finally:
+                self._held_for(time.monotonic() - start)
+            self._window_latency.add(time.monotonic() - start)
             self._publish_optimised(result.t, result.R)
+
+    def _held_for(self, seconds: float) -> None:
+        """This callback held the node for ``seconds``: the suit's samples could not come in meanwhile, so the poses
+        waiting for them wait that much longer, rather than go on with a gap the samples still queued would fill (a
+        CI run lost 2 poses to "suit data missing" right after the first window)."""
+        self._waiting = deque((*w[:4], w[4] + seconds) for w in self._waiting)
+        self._arrived = {segment: at + seconds for segment, at in self._arrived.items()}
 
     def _publish_optimised(self, t: np.ndarray, R: np.ndarray) -> None:
         """The optimised pelvis (N, 3), (N, 3, 3) of the oldest N frames waiting: the body turned about its pelvis
@@ -272,6 +282,7 @@ class BodyNode(GraphNode):
         if len(raw) > self.body.config.capacity:  # no pose asked for a while: keep the newest
             del raw[: len(raw) - self.body.config.capacity]
         self._newest[segment] = max(stamp_ns, self._newest.get(segment, stamp_ns))
+        self._arrived[segment] = time.monotonic()
         if self._waiting:
             self._drain()
         return stamp_ns
@@ -312,15 +323,22 @@ class BodyNode(GraphNode):
                 self._skip(None, "no map yet" if self._map is None else "no ground under the feet of the first "
                            "window (no sole height)")
         while self._waiting:
-            stamp_ns, _, _, _, deadline = self._waiting[0]
-            covered = self._offset_ns is not None and self._covered(stamp_ns + self._offset_ns)
-            if not covered and now < deadline:
+            stamp_ns, _, _, received, deadline = self._waiting[0]
+            if self._offset_ns is not None:
+                lagging = self._lagging(stamp_ns + self._offset_ns)
+                if lagging and (now < deadline or (now < received + SUIT_QUEUE_S and self._sending(lagging, now))):
+                    return
+            elif now < deadline:
                 return
             self._pose(*self._waiting.popleft()[:4])
 
-    def _covered(self, suit_ns: int) -> bool:
-        """Whether every segment has sent a sample at or after ``suit_ns``."""
-        return len(self._newest) == len(self._raw) and min(self._newest.values()) >= suit_ns
+    def _lagging(self, suit_ns: int) -> list[str]:
+        """The segments that have not sent a sample at or after ``suit_ns`` yet."""
+        return [s for s in self._raw if self._newest.get(s, suit_ns - 1) < suit_ns]
+
+    def _sending(self, segments: list[str], now: float) -> bool:
+        """Whether each of ``segments`` sent a sample within the last ``suit_wait_s`` (it is behind, not gone)."""
+        return all(now - self._arrived.get(s, -np.inf) < self.params["suit_wait_s"] for s in segments)
 
     def _pose(self, stamp_ns: int, frame_id: str, T_map_P: np.ndarray, received: float) -> None:
         """Pose and publish the body at one fused pelvis pose, or count why not."""
