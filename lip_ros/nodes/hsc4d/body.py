@@ -1,13 +1,13 @@
 """hsc4d_body_node: the suit's 17 segments on the fused pelvis trajectory, as the contract's pose outputs in ``map``.
 
 For each fused pelvis pose of ``hsc4d_trajectory_node`` (``/hsc4d/odometry``)
-it waits until every suit segment has a sample at
-that moment on the suit's clock (the pose's stamp plus the offset
-``hsc4d_trajectory_node`` found from the jump, ``/hsc4d/suit_clock_offset``),
-(``suit_wait_s`` at most, or as long as the segments it waits for are still
-sending, up to the suit queues' depth: a node that was busy works off the
-samples queued meanwhile before its poses give up on them),
-poses the body (:class:`lip_ros.hsc4d.suit_body.SuitBody`) and publishes
+it waits until every suit segment has a sample at that moment on the suit's
+clock (the pose's stamp plus the offset ``hsc4d_trajectory_node`` found from
+the jump, ``/hsc4d/suit_clock_offset``): ``suit_wait_s`` at most, or for as
+long as the segments it waits for are still sending, up to the suit queues'
+depth (a node that was busy works off the samples queued meanwhile before its
+poses give up on them). Then it poses the body
+(:class:`lip_ros.hsc4d.suit_body.SuitBody`) and publishes
 ``/hsc4d/joint_states``, ``/hsc4d/root_pose`` and ``/hsc4d/joint_poses`` with
 the pose's stamp. The skeleton is the contract's scaled by ``body_scale``;
 with ``body_scale`` 0 it is scaled to the pelvis height of the first fused pose
