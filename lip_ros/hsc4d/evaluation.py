@@ -50,7 +50,7 @@ import numpy as np
 
 from lip_ros.core.metrics import align_yaw_translation, mpjpe
 from lip_ros.core.skeleton import load_skeleton
-from lip_ros.hsc4d.lidar_odometry import KissIcpAlone
+from lip_ros.hsc4d.lidar_odometry import NOT_REGISTERED, KissIcpAlone
 from lip_ros.hsc4d.refinement import FEET, CaptureRefiner, RefinementConfig
 from lip_ros.hsc4d.scene_optimisation import TERMS, SceneOptimisationConfig, optimise_sequence, without
 from lip_ros.hsc4d.suit_body import moved_body
@@ -191,7 +191,8 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
     return TrajectoryRun(capture.config.seed, t_s, {k: v[:, :3, 3] for k, v in poses.items()}, joints,
                          truth.pelvis, truth.joints, capture.terrain.surface_height(truth.pelvis[:, :2]),
                          truth.contacts.stance, (jump - capture.epoch_ns) * 1e-9, int(pipeline.offset_ns),
-                         true_offset, np.array([bool(r) for r in live.rejected]), np.array(sweep_ms),
+                         true_offset, np.array([bool(r) and r != NOT_REGISTERED for r in live.rejected]),
+                         np.array(sweep_ms),
                          refined.window_s, refined.sole_m, dict(pipeline.counts),
                          {"live": maps[-1][1], "live_site": refined.live_map, "refined": refined.map},
                          refined.seconds, pipeline.lever_m, np.asarray(pipeline.config.mount.lever_m),

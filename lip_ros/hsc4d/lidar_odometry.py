@@ -50,8 +50,8 @@ from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from lip_ros.hsc4d.mount import HipMountPrior, rotation_between
 from lip_ros.hsc4d.suit_track import SuitTrack
 
-__all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "VerticalShift", "OdometryStep", "LidarOdometry",
-           "KissIcpAlone"]
+__all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "VerticalShift", "OdometryStep", "NOT_REGISTERED",
+           "LidarOdometry", "KissIcpAlone"]
 
 #: ``rotation(t_ns, ref_ns)``: the sensor frame at times ``t_ns`` (N,) in the sensor frame at ``ref_ns``,
 #: R_Lref_L (N, 3, 3); NaN where unknown.
@@ -95,12 +95,17 @@ class OdometryConfig:
     max_iterations: int = 30
     convergence: float = 1e-3
     threads: int = 0  # [registration.max_num_threads] 0: all cores
+    # sweeps are registered at most this often (0: every sweep); one that comes sooner after the last registered
+    # is posed by the suit's motion (the registration's initial guess) and adds nothing to the map. kiss-icp takes
+    # 20-30 ms a sweep here, so registering every sweep of a 20 Hz LiDAR takes most of a core by itself and the live
+    # graph fell behind on 2 cores (docs/hsc4d/graph.md)
+    max_rate_hz: float = 10.0
 
     def __post_init__(self) -> None:
         if not (0.0 < self.voxel_size_m and 0.0 <= self.min_range_m < self.max_range_m
                 and self.max_points_per_voxel > 0 and self.initial_threshold_m > 0.0 and self.max_iterations > 0
                 and self.convergence > 0.0 and self.threads >= 0 and self.speed_ratio >= 1.0
-                and self.speed_floor_mps >= 0.0 and 0.0 <= self.gravity_gain <= 1.0):
+                and self.speed_floor_mps >= 0.0 and 0.0 <= self.gravity_gain <= 1.0 and self.max_rate_hz >= 0.0):
             raise ValueError(f"invalid {self}")
 
     def kiss(self) -> KISSConfig:
@@ -158,6 +163,17 @@ class OdometryStep:
     rejected: str = ""
     tilt_deg: float = float("nan")
 
+    @property
+    def registered(self) -> bool:
+        """Whether the sweep was registered (not posed by the suit's motion under the rate cap)."""
+        return self.rejected != NOT_REGISTERED
+
+
+#: :attr:`OdometryStep.rejected` of a sweep that came sooner than ``max_rate_hz`` allows after the last registered
+NOT_REGISTERED = "not registered: posed by the suit's motion (registration rate cap)"
+#: a sweep is registered once this share of the cap's period has passed since the last registered one (stamps jitter)
+_RATE_SLACK = 0.8
+
 
 def _se3(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     out = np.eye(4)
@@ -176,14 +192,21 @@ class LidarOdometry:
         self._map = get_voxel_hash_map(kiss)
         self._threshold = get_threshold_estimator(kiss)
         self.pose = np.eye(4)  #: T_O_L of the last sweep
-        self._delta = np.eye(4)  # the last sweep-to-sweep motion, T_Lprev_L
-        self._delta_s = 0.0  # ... and how long it took
+        self._delta = np.eye(4)  # the motion between the last two registered sweeps, T_Lprev_L
+        self._delta_s = 0.0  # ... how long it took
         self._stamp_ns: int | None = None
+        self._registered_ns: int | None = None  # of the last sweep registered ...
+        self._registered_pose = np.eye(4)  # ... and its pose
         self.gravity: np.ndarray | None = None  #: gravity's up in O, once known
 
     def set_gravity(self, up: np.ndarray) -> None:
         """Gravity's up (3,) in the odometry frame O: from now on each pose's tilt is pulled toward the suit's."""
         self.gravity = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+
+    @property
+    def last_registered(self) -> tuple[int, np.ndarray] | None:
+        """The reference time (ns) and pose T_O_L of the last sweep registered (believed or not), None before."""
+        return None if self._registered_ns is None else (self._registered_ns, self._registered_pose)
 
     def map_points(self) -> np.ndarray:
         """(M, 3) the local map's points in O."""
@@ -218,16 +241,70 @@ class LidarOdometry:
         """Register one sweep: ``points`` (N, 3) in L, each seen at ``point_ns`` (N,), posed at ``stamp_ns`` (the
         sweep's reference time); ``rotation`` the sensor's rotation over time from the IMU, ``suit`` the suit's
         own odometry and ``vertical`` the IMU's vertical motion, if known. A sweep with no points keeps the
-        predicted pose; one not after the last is refused (ValueError)."""
+        predicted pose, and so does one that comes sooner than ``max_rate_hz`` allows after the last registered
+        (:data:`NOT_REGISTERED`, its points neither registered nor mapped); one not after the last is refused
+        (ValueError)."""
         if self._stamp_ns is not None and stamp_ns <= self._stamp_ns:
             raise ValueError(f"sweep at {stamp_ns} ns is not after the last one ({self._stamp_ns} ns)")
         c = self.config
+        dt = 0.0 if self._stamp_ns is None else (stamp_ns - self._stamp_ns) * 1e-9
+        guess, suit_motion = self._guess(stamp_ns, dt, rotation, suit, vertical)
+        sigma = float(self._threshold.get_threshold())
+        if not self._due(stamp_ns):
+            self.pose, self._stamp_ns = self._level(guess, stamp_ns, suit), stamp_ns
+            pose = self.pose
+            return OdometryStep(stamp_ns, pose, np.empty((0, 3)), 0, sigma, 0.0, 0.0, NOT_REGISTERED,
+                                self._tilt_deg(guess, stamp_ns, suit))
         points = np.asarray(points, dtype=np.float64)
         point_ns = np.asarray(point_ns, dtype=np.int64)
         rng = np.linalg.norm(points, axis=1)
         keep = (rng >= c.min_range_m) & (rng <= c.max_range_m) & self.wearer.keep(points)
         frame = self.deskew(points[keep], point_ns[keep], stamp_ns, rotation)
-        dt = 0.0 if self._stamp_ns is None else (stamp_ns - self._stamp_ns) * 1e-9
+        frame_down = voxel_down_sample(frame, 0.5 * c.voxel_size_m)
+        source = voxel_down_sample(frame_down, 1.5 * c.voxel_size_m)
+        if self._map.empty():
+            pose = guess
+        else:
+            pose = np.asarray(self._registration.align_points_to_map(
+                points=source, voxel_map=self._map, initial_guess=guess, max_correspondance_distance=3.0 * sigma,
+                kernel=sigma))
+        deviation = np.linalg.inv(guess) @ pose
+        correction_m = float(np.linalg.norm(deviation[:3, 3]))
+        rejected = ""
+        if correction_m > c.max_correction_m:
+            rejected = f"correction {correction_m:.2f} m > {c.max_correction_m} m"
+        elif suit_motion is not None:  # the motion since the last registered sweep (the last, without a cap)
+            since_ns = self._stamp_ns if self._registered_ns is None else self._registered_ns
+            if since_ns != self._stamp_ns:
+                suit_motion = suit.horizontal_motion(since_ns, stamp_ns)
+            if suit_motion is not None:
+                rejected = self._speed_rule(np.linalg.inv(self._registered_pose) @ pose, *suit_motion,
+                                            (stamp_ns - since_ns) * 1e-9)
+        if rejected:
+            pose = guess
+        tilt = self._tilt_deg(pose, stamp_ns, suit)
+        pose = self._level(pose, stamp_ns, suit)
+        self._threshold.update_model_deviation(deviation)
+        self._map.update(frame_down, pose)
+        if self._registered_ns is not None:
+            self._delta = np.linalg.inv(self._registered_pose) @ pose
+            self._delta_s = (stamp_ns - self._registered_ns) * 1e-9
+        self._registered_ns, self._registered_pose = stamp_ns, pose
+        self.pose, self._stamp_ns = pose, stamp_ns
+        return OdometryStep(stamp_ns, pose, frame, len(source), sigma, correction_m,
+                            float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected, tilt)
+
+    def _due(self, stamp_ns: int) -> bool:
+        """Whether the sweep at ``stamp_ns`` is to be registered under ``max_rate_hz``."""
+        rate = self.config.max_rate_hz
+        return (rate == 0.0 or self._registered_ns is None
+                or (stamp_ns - self._registered_ns) * 1e-9 >= _RATE_SLACK / rate)
+
+    def _guess(self, stamp_ns: int, dt: float, rotation: SweepRotation | None, suit: SuitTrack | None,
+               vertical: VerticalShift | None) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+        """The predicted pose T_O_L at ``stamp_ns``, ``dt`` s after the last sweep: the IMU's rotation, the suit's
+        horizontal motion and the IMU's vertical where known, else the last sweep-to-sweep motion; and the suit's
+        horizontal motion and up (None if unknown)."""
         turn = self._delta[:3, :3]
         if self._delta_s > 0.0:  # constant velocity, scaled to this sweep's interval
             turn = axis_angle_to_matrix(matrix_to_axis_angle(turn) * dt / self._delta_s)
@@ -243,43 +320,27 @@ class LidarOdometry:
             rise = float(shift @ up)
             if vertical is not None and self._delta_s > 0.0:  # ... carried on by the IMU's acceleration
                 v_up = float(self._delta[:3, :3].T @ self._delta[:3, 3] @ up) / self._delta_s
-                carried = vertical(self._stamp_ns - int(self._delta_s * 5e8), v_up, self._stamp_ns, stamp_ns)
+                carried = vertical(self._registered_ns - int(self._delta_s * 5e8), v_up, self._stamp_ns, stamp_ns)
                 rise = rise if carried is None else carried
             shift = horizontal + rise * up
-        guess = self.pose @ _se3(turn, shift)
-        frame_down = voxel_down_sample(frame, 0.5 * c.voxel_size_m)
-        source = voxel_down_sample(frame_down, 1.5 * c.voxel_size_m)
-        sigma = float(self._threshold.get_threshold())
-        if self._map.empty():
-            pose = guess
-        else:
-            pose = np.asarray(self._registration.align_points_to_map(
-                points=source, voxel_map=self._map, initial_guess=guess, max_correspondance_distance=3.0 * sigma,
-                kernel=sigma))
-        deviation = np.linalg.inv(guess) @ pose
-        correction_m = float(np.linalg.norm(deviation[:3, 3]))
-        rejected = ""
-        if correction_m > c.max_correction_m:
-            rejected = f"correction {correction_m:.2f} m > {c.max_correction_m} m"
-        elif suit_motion is not None:
-            rejected = self._speed_rule(np.linalg.inv(self.pose) @ pose, *suit_motion, dt)
-        if rejected:
-            pose = guess
-        tilt = float("nan")
+        return self.pose @ _se3(turn, shift), suit_motion
+
+    def _tilt_deg(self, pose: np.ndarray, stamp_ns: int, suit: SuitTrack | None) -> float:
+        """How far ``pose``'s up is from the suit's gravity (deg; NaN without gravity or the suit)."""
         up = None if suit is None or self.gravity is None else suit.up_in_lidar(stamp_ns)
-        if up is not None:  # turn the pose's up (gravity in L) part of the way to the suit's
-            current = pose[:3, :3].T @ self.gravity
-            tilt = float(np.degrees(np.arccos(np.clip(current @ up, -1.0, 1.0))))
-            full = matrix_to_axis_angle(rotation_between(up, current))
-            pose = pose.copy()
-            pose[:3, :3] = pose[:3, :3] @ axis_angle_to_matrix(c.gravity_gain * full)
-        self._threshold.update_model_deviation(deviation)
-        self._map.update(frame_down, pose)
-        if self._stamp_ns is not None:
-            self._delta, self._delta_s = np.linalg.inv(self.pose) @ pose, dt
-        self.pose, self._stamp_ns = pose, stamp_ns
-        return OdometryStep(stamp_ns, pose, frame, len(source), sigma, correction_m,
-                            float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected, tilt)
+        if up is None:
+            return float("nan")
+        return float(np.degrees(np.arccos(np.clip((pose[:3, :3].T @ self.gravity) @ up, -1.0, 1.0))))
+
+    def _level(self, pose: np.ndarray, stamp_ns: int, suit: SuitTrack | None) -> np.ndarray:
+        """``pose`` with its up (gravity in L) turned ``gravity_gain`` of the way to the suit's, where known."""
+        up = None if suit is None or self.gravity is None else suit.up_in_lidar(stamp_ns)
+        if up is None:
+            return pose
+        full = matrix_to_axis_angle(rotation_between(up, pose[:3, :3].T @ self.gravity))
+        out = pose.copy()
+        out[:3, :3] = pose[:3, :3] @ axis_angle_to_matrix(self.config.gravity_gain * full)
+        return out
 
     def _speed_rule(self, step: np.ndarray, suit_horizontal: np.ndarray, up: np.ndarray, dt: float) -> str:
         """Why the registered motion ``step`` (T_Lprev_L) is not believed against the suit's horizontal motion over

@@ -53,7 +53,10 @@ from lip_ros.hsc4d.pose_graph import LiveTrajectoryGraph, PoseGraphConfig, fuse_
 from lip_ros.hsc4d.suit_track import SuitTrack
 from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
 
-__all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline"]
+__all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline", "RATE_CAPPED"]
+
+#: :attr:`TrajectoryPipeline.counts` key of the sweeps the odometry posed by the suit's motion under its rate cap
+RATE_CAPPED = "sweeps posed by the suit's motion (registration rate cap)"
 
 
 @dataclass(frozen=True)
@@ -90,7 +93,8 @@ class TrajectoryConfig:
 class TrajectoryStep:
     """One sweep's output: its reference time (LiDAR clock), the fused pelvis pose T_map_P, the odometry's sensor
     pose T_map_L and the pelvis the odometry alone places through the mounting as it then stood (4, 4) each, why
-    the registration was not believed ("" if it was), how far it moved the
+    the sweep has no LiDAR pose of its own ("" if registered and believed; ``NOT_REGISTERED`` if posed by the suit's
+    motion under the odometry's rate cap), how far the registration moved the
     initial guess (m), how many points it registered, the stamp the sweep was given to
     :meth:`TrajectoryPipeline.add_sweep` with, and its points deskewed to the reference time in L (M, 3), the
     wearer's removed."""
@@ -289,8 +293,11 @@ class TrajectoryPipeline:
         """Register and fuse one sweep; the steps that became ready."""
         ref = (int(point_ns.min()) + int(point_ns.max())) // 2 if point_ns.size else stamp_ns
         previous_pose, previous_ns = self.odometry.pose, (self._stamps[-1] if self._stamps else None)
+        anchor = self.odometry.last_registered  # the LiDAR's own motion is measured from there
         step = self.odometry.register(points, point_ns, ref, self.rotation, self.suit, self.rotation.vertical_shift)
-        if step.rejected:
+        if not step.registered:
+            self.counts[RATE_CAPPED] += 1
+        elif step.rejected:
             self.counts["registrations not believed"] += 1
         T_O_P = step.pose @ self._T_L_M
         between = None
@@ -298,13 +305,10 @@ class TrajectoryPipeline:
             suit = self.suit.pelvis(previous_ns), self.suit.pelvis(ref)
             if suit[0] is not None and suit[1] is not None:
                 between = np.linalg.inv(suit[0]) @ suit[1]
-                registered = np.linalg.inv(previous_pose) @ step.pose  # T_Lprev_L
-                lidar = self._T_M_L @ registered @ self._T_L_M
-                scale = self.stride_scale.value if step.rejected else self.stride_scale.add(ref, lidar, between)
-                if not step.rejected and self.odometry.gravity is not None:  # the suit's T_Lprev_L, as SuitTrack's
-                    self._turn_mount(registered, self._T_L_M @ between @ self._T_M_L)
-                    self._move_lever(ref, step.pose, suit[1])
-                between[[0, 2], 3] *= scale
+                lidar = self._T_M_L @ np.linalg.inv(previous_pose) @ step.pose @ self._T_L_M
+                if not step.rejected and anchor is not None:
+                    self._hand_eye(ref, step.pose, suit[1], *anchor)
+                between[[0, 2], 3] *= self.stride_scale.value
                 between[1, 3] = lidar[1, 3]  # the vertical (P's y) the suit does not know: the odometry's
         self._stamps.append(ref)
         self._landmarks.append(None if step.rejected else step.pose)
@@ -365,6 +369,21 @@ class TrajectoryPipeline:
         if angle is not None:
             self.mount_yaw_deg += float(np.degrees(angle))
             self._set_mount_rotation(self._T_M_L[:3, :3] @ axis_angle_to_matrix(-angle * axis))
+
+    def _hand_eye(self, ref: int, T_O_L: np.ndarray, T_I_P: np.ndarray, anchor_ns: int, anchor_T_O_L: np.ndarray
+                  ) -> None:
+        """A believed registration at ``ref``: its motion since the last registered sweep (``anchor_ns``; the
+        previous sweep unless the odometry's rate cap posed that one by the suit) against the suit's, for the
+        stride scale and the mounting."""
+        T_I_P0 = self.suit.pelvis(anchor_ns)
+        if T_I_P0 is None:
+            return
+        registered = np.linalg.inv(anchor_T_O_L) @ T_O_L  # T_Lanchor_L
+        suit = np.linalg.inv(T_I_P0) @ T_I_P
+        self.stride_scale.add(ref, self._T_M_L @ registered @ self._T_L_M, suit)
+        if self.odometry.gravity is not None:  # the suit's T_Lanchor_L, as SuitTrack's
+            self._turn_mount(registered, self._T_L_M @ suit @ self._T_M_L)
+            self._move_lever(ref, T_O_L, T_I_P)
 
     def _move_lever(self, ref: int, T_O_L: np.ndarray, T_I_P: np.ndarray) -> None:
         """Feed one believed sweep to the lever arm's estimate; use the estimate when it moved."""

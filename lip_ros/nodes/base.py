@@ -34,10 +34,11 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidParameterTypeException, ParameterException
+from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.subscription import Subscription
 
 from lip_msgs_py import (
     DiagnosticLevel,
@@ -51,9 +52,9 @@ from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import use_lip_dds_profile
 from lip_ros.resources import params_path
 
-__all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "numbers", "GraphNode", "LatencyWindow", "RELIABLE",
-           "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input", "LATCHED", "node_defaults", "check_params_files",
-           "run_nodes", "FrameArrivals", "tf_publisher"]
+__all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "non_negative", "numbers", "GraphNode",
+           "LatencyWindow", "RELIABLE", "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input", "LATCHED",
+           "node_defaults", "check_params_files", "run_nodes", "FrameArrivals", "tf_publisher"]
 
 #: QoS of the graph's outputs.
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -96,6 +97,11 @@ class Param:
 def positive(value: Any) -> str | None:
     """Check: a number > 0."""
     return None if value > 0 else f"must be > 0, got {value}"
+
+
+def non_negative(value: Any) -> str | None:
+    """Check: a number >= 0."""
+    return None if value >= 0 else f"must be >= 0, got {value}"
 
 
 def numbers(*lengths: int) -> Callable[[Any], str | None]:
@@ -216,6 +222,7 @@ class GraphNode(Node):
         self.group = MutuallyExclusiveCallbackGroup()
         self.frames: Counter[str] = Counter()  # "frames <what>" of the diagnostics, without the prefix
         self._inputs: dict[str, tuple[str, type, SensorMonitor]] = {}
+        self._takers: dict[str, tuple[Subscription, Callable[[Any], None]]] = {}  # by input name
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)  # also ticks while a bag's /clock is paused or over
         self.create_timer(self.params["diagnostics_period_s"], self._on_diagnostics_timer, self.group,
@@ -268,7 +275,25 @@ class GraphNode(Node):
                 monitor.reject(now, str(exc).split(":")[0][:60])
                 self.get_logger().warning(f"{name} ({topic}): message skipped: {exc}", throttle_duration_sec=5.0)
 
-        self.create_subscription(msg_type, topic, callback, qos, callback_group=self.group, raw=raw)
+        self._takers[name] = (self.create_subscription(msg_type, topic, callback, qos, callback_group=self.group,
+                                                       raw=raw), callback)
+
+    def take_waiting(self, name: str) -> int:
+        """Handle every message of input ``name`` received and not yet taken; how many. rclpy's executor takes
+        one message per subscription per wait, so while a long callback (a sweep's registration) comes round on
+        every wait a fast input falls behind it until its queue overflows; the long callback calls this first."""
+        subscription, callback = self._takers[name]
+        taken = 0
+        while True:
+            try:
+                with subscription.handle:
+                    message = subscription.handle.take_message(subscription.msg_type, subscription.raw)
+            except InvalidHandle:  # destroyed at shutdown
+                return taken
+            if message is None:
+                return taken
+            callback(message[0])
+            taken += 1
 
     def count_frame(self, what: str, detail: str = "") -> None:
         """Account for a LiDAR frame that ends here (``frames <what>`` on /diagnostics); log why if skipped."""

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from lip_ros.hsc4d.lidar_odometry import LidarOdometry, OdometryConfig, WearerFilter
+from lip_ros.hsc4d.lidar_odometry import NOT_REGISTERED, LidarOdometry, OdometryConfig, WearerFilter
 from lip_ros.hsc4d.mount import HipMountPrior
 from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
 from lip_ros.rig.imu import ImuNoise, simulate_imus
@@ -127,6 +127,39 @@ def test_an_empty_sweep_keeps_the_prediction_and_time_must_go_forward():
     assert step.source_points == 0 and np.allclose(step.pose, np.eye(4))
     with pytest.raises(ValueError, match="not after"):
         odometry.register(points, np.full(5000, 1_000), 100_001_000)
+
+
+@pytest.mark.parametrize("max_rate_hz", [10.0, 0.0])
+def test_sweeps_beyond_the_registration_rate_are_posed_by_the_prediction(max_rate_hz):
+    """Sweeps at 10 Hz, then 20 Hz: under a 10 Hz cap every other 20 Hz sweep is registered; the others keep the
+    predicted pose (here the constant velocity of the registered ones), add nothing to the map and say why; a
+    sweep after a lost one (100 ms) or a period a little short (stamps jitter) is registered. Without a cap (0)
+    every sweep is."""
+    rng = np.random.default_rng(1)
+    room = np.concatenate([rng.uniform(-8.0, 8.0, (4000, 3)) * [1.0, 1.0, 0.0] + [0.0, 0.0, -1.5],
+                           rng.uniform(-8.0, 8.0, (4000, 3)) * [0.0, 1.0, 0.3] + [8.0, 0.0, 0.0],
+                           rng.uniform(-8.0, 8.0, (4000, 3)) * [1.0, 0.0, 0.3] + [0.0, 8.0, 0.0]])
+    odometry = LidarOdometry(OdometryConfig(max_rate_hz=max_rate_hz))
+    stamps_ms = [0, 100, 200, 250, 300, 350, 450, 549, 599]  # 400 lost, 549 a millisecond early
+    registered = []
+    for previous_ms, ms in zip([None] + stamps_ms[:-1], stamps_ms, strict=True):
+        before = len(odometry.map_points())
+        pose = odometry.pose.copy()
+        shift = 0.02 * ms / 50.0  # walking 0.4 m/s along x
+        step = odometry.register(room - [shift, 0.0, 0.0], np.full(len(room), ms * 1_000_000), ms * 1_000_000)
+        registered.append(step.registered)
+        if not step.registered:
+            assert step.rejected == NOT_REGISTERED and step.source_points == 0 and len(step.points) == 0
+            assert len(odometry.map_points()) == before
+            moved = step.pose[:3, 3] - pose[:3, 3]
+            assert np.allclose(moved, [0.4e-3 * (ms - previous_ms), 0.0, 0.0], atol=0.005), (ms, moved)
+        else:
+            assert step.rejected == "" and step.source_points > 0
+            assert abs(step.pose[0, 3] - shift) < 0.01, ms
+    if max_rate_hz == 0.0:
+        assert all(registered)
+    else:
+        assert registered == [True, True, True, False, True, False, True, True, False]
 
 
 def _run(capture: SiteCapture, rotation: PelvisRotation | None) -> tuple[np.ndarray, np.ndarray]:

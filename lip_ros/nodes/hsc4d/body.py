@@ -71,6 +71,7 @@ from lip_ros.nodes.base import (
     LatencyWindow,
     Param,
     ParameterError,
+    non_negative,
     positive,
     run_nodes,
     suit_input,
@@ -105,7 +106,7 @@ class BodyNode(GraphNode):
         "odometry_topic": Param("input: the fused pelvis trajectory of hsc4d_trajectory_node"),
         "offset_topic": Param("input (latched): the suit's clock offset of hsc4d_trajectory_node"),
         "body_scale": Param("the performer's size relative to the contract skeleton (0 = from the standing pelvis "
-                            "height of the first fused pose)", lambda v: None if v >= 0 else f"must be >= 0, got {v}"),
+                            "height of the first fused pose)", non_negative),
         "suit_wait_s": Param("a pose waits this long after arriving for every segment's sample; longer (up to the "
                              "suit queues' 5 s) while the segments it waits for still send", positive),
         "max_waiting_poses": Param("poses that may wait for the suit; the oldest goes on with what there is",
