@@ -44,6 +44,9 @@ __all__ = ["SceneOptimisationConfig", "WindowInput", "WindowResult", "TERMS", "s
 TERMS = ("contact", "sliding", "orientation", "smoothness", "prior")
 
 
+_MAX_WAIT_WINDOWS = 4  # the bound on the frames waiting for the first window's ground
+
+
 @dataclass(frozen=True)
 class SceneOptimisationConfig:
     """Window length, the ground search round each foot and the terms' weights (the paper's l = 100, r = 0.6 m)."""
@@ -66,12 +69,16 @@ class SceneOptimisationConfig:
     smoothness: float = 1.0  # ... per m^2 of a frame's horizontal step length off the suit's
     prior: float = 1.0  # ... per m^2 of the translation's distance from the fused one
     iterations: int = 60  # L-BFGS iterations per window
+    # the first window waits for a map that shows the ground under its feet (mapped once the wearer walked away from
+    # the start) for a window more, or this long if that is more (two 100-frame windows are 10 s at 20 Hz: the
+    # wearer had not walked off the start's ground by then), up to four windows
+    max_wait_s: float = 20.0
 
     def __post_init__(self) -> None:
         if not (self.window >= 3 and self.radius_m > 0.0 and self.above_m >= 0.0 and self.below_m > 0.0
                 and self.plane_tolerance_m > 0.0 and 0.0 < self.plane_max_tilt_deg < 90.0
                 and self.plane_min_points >= 3 and self.stance_speed_mps > 0.0 and self.contact_huber_m > 0.0
-                and all(getattr(self, t) >= 0.0 for t in TERMS) and self.iterations > 0):
+                and all(getattr(self, t) >= 0.0 for t in TERMS) and self.iterations > 0 and self.max_wait_s >= 0.0):
             raise ValueError(f"invalid {self}")
 
 
@@ -256,8 +263,8 @@ class SceneOptimiser:
     """The optimisation live: frames go in one at a time (:meth:`add`); once a window is :attr:`full`,
     :meth:`optimise` solves its oldest window on the map as it stands then, continuing from the window before.
     The sole height is measured in the first window optimised (the still start; see :func:`sole_height`) unless
-    given; until a map shows the ground under that window's feet, its frames wait (up to a second window behind
-    it: then the oldest window must be :meth:`drop` ped)."""
+    given; until a map shows the ground under that window's feet, its frames wait (up to :attr:`capacity`: then
+    the oldest window must be :meth:`drop` ped)."""
 
     def __init__(self, config: SceneOptimisationConfig | None = None, sole_m: float | None = None,
                  seed: int = 0) -> None:
@@ -278,8 +285,14 @@ class SceneOptimiser:
 
     @property
     def capacity(self) -> int:
-        """Frames that may wait: two windows."""
-        return 2 * self.config.window
+        """Frames that may wait: two windows, or ``max_wait_s`` of frames at the rate of those waiting if that is
+        more, at most four windows."""
+        c, frames = self.config, self._frames
+        n = 2 * c.window
+        if len(frames) >= 2 and frames[-1][0] > frames[0][0]:
+            rate_hz = (len(frames) - 1) / (frames[-1][0] - frames[0][0])
+            n = max(n, int(round(c.max_wait_s * rate_hz)))
+        return min(n, _MAX_WAIT_WINDOWS * c.window)
 
     def add(self, t_s: float, pelvis: np.ndarray, feet: np.ndarray, suit_pelvis: np.ndarray,
             suit_feet: np.ndarray) -> None:
@@ -340,8 +353,8 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, feet: np.ndarray, sui
     ``map``, the pelvis (N, 3) and the feet (N, 2, 3) as the suit alone places them (any frame: for the step
     lengths and the stance), the map's points when frame ``k`` was the newest (``map_at(k)``, (M, 3) in
     ``map``), with a :class:`SceneOptimiser`. ``sole_m`` None: measured in the first window (:func:`sole_height`)
-    on the first map that shows the ground under its feet, the window waiting a window for it at most (then it is
-    left as fused); ValueError if none does by the end."""
+    on the first map that shows the ground under its feet, the window waiting for it as long as the optimiser's
+    :attr:`SceneOptimiser.capacity` allows (then it is left as fused); ValueError if none does by the end."""
     optimiser = SceneOptimiser(config, sole_m, seed)
     out_pelvis, out_feet = pelvis.copy(), feet.copy()
     stance = np.zeros((len(t_s), 2), dtype=bool)

@@ -155,7 +155,7 @@ def test_config_checks():
 def test_the_live_optimiser_takes_frames_one_window_at_a_time(walk):
     t, pelvis, feet, stance, fused, suit, ground = walk
     start = fused[:, None] + (feet - pelvis[:, None])
-    config = replace(SceneOptimisationConfig(), window=50)
+    config = replace(SceneOptimisationConfig(), window=50, max_wait_s=0.0)  # frames wait two windows
     optimiser = SceneOptimiser(config, sole_m=SOLE_M)
     with pytest.raises(ValueError, match="no frames"):
         optimiser.optimise(ground)
@@ -179,12 +179,26 @@ def test_the_live_optimiser_takes_frames_one_window_at_a_time(walk):
     assert waiting.drop(10) == 10 and len(waiting) == 40 and waiting.drop() == 40
 
 
+def test_frames_wait_for_the_ground_a_window_or_max_wait_s_whichever_is_longer(walk):
+    """Two 20-frame windows are 4 s at 10 Hz and 2 s at 20 Hz: with max_wait_s 3 s, 40 frames may wait at 10 Hz
+    and 60 at 20 Hz; never more than four windows (at 40 Hz: 80, not 120)."""
+    t, pelvis, feet, stance, fused, suit, ground = walk
+    config = replace(SceneOptimisationConfig(), window=20, max_wait_s=3.0)
+    for rate_hz, capacity in ((10.0, 40), (20.0, 60), (40.0, 80)):
+        waiting = SceneOptimiser(config)
+        for k in range(capacity):
+            waiting.add(k / rate_hz, _poses(fused)[k], feet[k], suit[k], feet[k])
+        assert waiting.capacity == capacity
+        with pytest.raises(RuntimeError, match="optimise or drop"):
+            waiting.add(capacity / rate_hz, _poses(fused)[0], feet[0], suit[0], feet[0])
+
+
 def test_the_first_window_waits_for_a_map_with_the_ground_under_its_feet(walk):
     """The start's ground is mapped only once the wearer walked away: the batch run, like the node, keeps the first
     window until a map shows it (at most a window later), else leaves it as fused."""
     t, pelvis, feet, stance, fused, suit, ground = walk
     start = fused[:, None] + (feet - pelvis[:, None])
-    config = replace(SceneOptimisationConfig(), window=30)
+    config = replace(SceneOptimisationConfig(), window=30, max_wait_s=0.0)  # frames wait two windows
 
     def run(ground_from: int):
         return optimise_sequence(t, _poses(fused), start, suit, feet,

@@ -1,12 +1,17 @@
-"""How a graph's spinning threads tell a shutdown from a failure (rclpy in this process, no traffic)."""
+"""How a graph's spinning threads tell a shutdown from a failure (rclpy in this process, no traffic), and how a
+node takes a fast input's waiting messages itself (over DDS)."""
 
 from __future__ import annotations
+
+import time
 
 import pytest
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
+from std_msgs.msg import Int64
 
-from lip_ros.nodes.base import _spin_each
+from lip_ros.nodes.base import GraphNode, _spin_each, suit_input
+from lip_ros.nodes.lip import LIP_PARAMS_FILE
 
 pytestmark = pytest.mark.ros
 
@@ -39,3 +44,45 @@ def test_a_failing_callback_is_reported_and_stops_the_graph() -> None:
     errors = _spin_one_callback(fail)
     assert [str(e) for e in errors] == ["a bug"]
     assert not rclpy.ok()
+
+
+class _Probe(GraphNode):
+    """A graph node with one fast input, its messages kept in order."""
+
+    NAME = "lip_ros_test_take_waiting"
+    PARAMS_FILE = LIP_PARAMS_FILE
+
+    def __init__(self) -> None:
+        super().__init__(self.NAME)
+        self.handled: list[int] = []
+        self.add_input("probe", "/lip_ros_test/take_waiting", Int64, 100.0, self._on_probe, suit_input(100.0))
+
+    def _on_probe(self, msg: Int64) -> int:
+        self.handled.append(msg.data)
+        return msg.data
+
+
+def test_take_waiting_handles_every_message_already_received() -> None:
+    """A long callback takes the rest of a fast input in one go (the executor would give it one message per wait):
+    every message received so far, in order, through the input's own handler and monitor; then nothing."""
+    rclpy.init()
+    probe = _Probe()
+    driver = rclpy.create_node("lip_ros_test_take_waiting_driver")
+    publisher = driver.create_publisher(Int64, "/lip_ros_test/take_waiting", suit_input(100.0))
+    try:
+        deadline = time.monotonic() + 10.0
+        while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for k in range(1, 51):
+            publisher.publish(Int64(data=k))
+        taken = []
+        while len(taken) < 50 and time.monotonic() < deadline:  # no executor spins: only take_waiting takes
+            time.sleep(0.05)
+            taken.append(probe.take_waiting("probe"))
+            taken = [n for n in taken if n]
+        assert probe.handled == list(range(1, 51)) and sum(taken) == 50
+        assert probe.take_waiting("probe") == 0
+    finally:
+        driver.destroy_node()
+        probe.destroy_node()
+        rclpy.try_shutdown()

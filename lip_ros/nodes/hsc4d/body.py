@@ -24,11 +24,12 @@ root_pose,joint_poses}`` (one window, 10 s at 10 Hz, behind the fused output).
 The first window also measures how high the foot joint stands
 above its sole, which needs the ground under the standing feet in the map;
 the ground the wearer stood on at the start is mapped only once they walked
-away (their own body hides it), so that window may wait for a later map, at
-most one window long. A partial window is optimised once no fused pose has
-come for ``optimise_flush_s`` (the end of a capture). Frames that cannot be
+away (their own body hides it), so that window may wait for a later map, a
+window or ``max_wait_s`` (20 s) long, whichever is longer. A partial window is
+optimised once no fused pose has come for ``optimise_flush_s`` (the end of a
+capture). Frames that cannot be
 optimised (no suit odometry near them; no map, or no ground under the first
-window's feet, a window later or at the end) are counted by reason on
+window's feet by then or at the end) are counted by reason on
 ``/diagnostics``.
 """
 
@@ -216,7 +217,7 @@ class BodyNode(GraphNode):
             self._not_optimised["optimisation skipped: no suit odometry near the frame"] += 1
             return
         optimiser = self._optimiser
-        if len(optimiser) >= optimiser.capacity:  # the oldest window waited a whole window in vain
+        if len(optimiser) >= optimiser.capacity:  # the oldest window waited in vain as long as it may
             self._skip(optimiser.config.window, "no map yet" if self._map is None else "no ground under the feet of "
                        "the first window (no sole height)")
         optimiser.add(stamp_ns * 1e-9, T_map_P, pose.joints[self._feet], T_suit[:3, 3], suit.joints[self._feet])
