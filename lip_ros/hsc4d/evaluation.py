@@ -76,7 +76,8 @@ class TrajectoryRun:
     """One capture's trajectories at the output sweeps' reference times ``t_s`` (s since the capture began):
     pelvis positions (N, 3) and joints (N, 24, 3) per method (:data:`METHODS`, :data:`ABLATIONS`) and of the
     truth, the true ground height under the true pelvis (N,), which foot truly stands (N, 2), the jump's landing
-    (s), the suit clock offset found and the true one (ns), which registrations were not believed (N,), the time
+    (s), the suit clock offset found and the true one (ns), which registrations were not believed (N,; False for
+    the sweeps the odometry's rate cap posed by the suit), the time
     each sweep took in ``add_sweep`` (ms; the sweeps held until the jump are registered together in the call that
     finds it, each counted at that call's time over their number), the refinement's optimisation time per window
     (s) and the sole height it measured (m), the pipeline's counters, the maps (M, 3) in ``map`` (:data:`MAPS`), the

@@ -166,6 +166,8 @@ class BodyNode(GraphNode):
         self._newest: dict[str, int] = {}  # each segment's newest stamp received
         self._arrived: dict[str, float] = {}  # ... and when its last sample came (monotonic s)
         self._rejected: Counter[str] = Counter()  # suit samples, by reason
+        self._suit_inputs = [f"suit {segment}" for segment in self.body.segments] + (
+            ["suit odometry"] if self._optimiser is not None else [])
         for segment, topic in zip(self.body.segments, p["suit_imu_topics"]):
             self.add_input(f"suit {segment}", topic, Imu, p["suit_rate_hz"],
                            lambda data, segment=segment: self._on_imu(segment, data), suit_input(p["suit_rate_hz"]),
@@ -311,6 +313,9 @@ class BodyNode(GraphNode):
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
         now = time.monotonic()
         self._waiting.append((odometry.stamp_ns, odometry.frame_id, T, now, now + self.params["suit_wait_s"]))
+        if len(self._waiting) > self.params["max_waiting_poses"]:  # the oldest is posed now: with every suit
+            for name in self._suit_inputs:  # sample received (the executor takes one a topic per wait)
+                self.take_waiting(name)
         while len(self._waiting) > self.params["max_waiting_poses"]:
             self._pose(*self._waiting.popleft()[:4])
         self._drain()
