@@ -64,7 +64,6 @@ from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMI
 from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body
 from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.nodes.base import (
-    BETWEEN_NODES,
     LATCHED,
     RELIABLE,
     SUIT_QUEUE_S,
@@ -77,7 +76,7 @@ from lip_ros.nodes.base import (
     run_nodes,
     suit_input,
 )
-from lip_ros.nodes.hsc4d import HSC4D_PARAMS_FILE
+from lip_ros.nodes.hsc4d import FUSED_ODOMETRY_QOS, HSC4D_PARAMS_FILE
 from lip_ros.nodes.hsc4d.trajectory import TrajectoryNode
 from lip_ros.outputs import pose_messages
 
@@ -161,7 +160,7 @@ class BodyNode(GraphNode):
                            self._on_suit_odometry, suit_input(p["suit_rate_hz"]))
         self.create_subscription(Int64, p["offset_topic"], self._on_offset, LATCHED, callback_group=self.group)
         self.add_input("fused odometry", p["odometry_topic"], Odometry, p["lidar_rate_hz"], self._on_odometry,
-                       BETWEEN_NODES)
+                       FUSED_ODOMETRY_QOS)
         self._raw: dict[str, list[bytes]] = {s: [] for s in self.body.segments}  # not decoded yet
         self._newest: dict[str, int] = {}  # each segment's newest stamp received
         self._arrived: dict[str, float] = {}  # ... and when its last sample came (monotonic s)
@@ -214,6 +213,8 @@ class BodyNode(GraphNode):
         """Give one posed frame to the optimiser (with the suit's own feet); optimise a full window."""
         suit_ns = stamp_ns + self._offset_ns
         T_suit = self._suit_pose(suit_ns)
+        if T_suit is None and self.take_waiting("suit odometry"):  # behind the poses (one taken a wait)
+            T_suit = self._suit_pose(suit_ns)
         suit = None if T_suit is None else self.body.pose(suit_ns, T_suit)[0]
         if suit is None:
             self._not_optimised["optimisation skipped: no suit odometry near the frame"] += 1

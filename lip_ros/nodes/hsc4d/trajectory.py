@@ -54,7 +54,6 @@ from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, Traje
 from lip_ros.nodes.base import (
     IMU_INPUT,
     LATCHED,
-    RELIABLE,
     GraphNode,
     LatencyWindow,
     Param,
@@ -66,7 +65,7 @@ from lip_ros.nodes.base import (
     suit_input,
     tf_publisher,
 )
-from lip_ros.nodes.hsc4d import HSC4D_PARAMS_FILE
+from lip_ros.nodes.hsc4d import FUSED_ODOMETRY_QOS, HSC4D_PARAMS_FILE
 
 __all__ = ["TrajectoryNode", "main"]
 
@@ -76,12 +75,15 @@ _DROPPED = {"sweeps dropped waiting for the jump": "skipped: held too long (no j
             "sweeps dropped: registration fell behind": "skipped: registration fell behind"}
 _RESTART_NS = 1_000_000_000  # a sweep this far before the last one starts the trajectory over
 _MAX_TWIST_DT_S = 0.5  # the twist is left zero across a longer gap between outputs
-#: SensorDataQoS, deep enough for the longest callback (registering a few sweeps while the rest of the process also
-#: wants the interpreter: up to about a second measured) at 10-20 Hz clouds
-_CLOUD_INPUT = QoSProfile(depth=20, reliability=IMU_INPUT.reliability, durability=IMU_INPUT.durability)
-#: with each sweep taken, the backlog (the sweeps held until the jump) is registered for at most this share of a
-#: LiDAR period (the oldest sweep first, the new one behind them): the rest of the period is the live sweep's
-_CATCH_UP_SHARE = 0.5
+#: the cloud input keeps this much of clouds (SensorDataQoS otherwise): the longest callback (registering a few
+#: sweeps while the rest of the process also wants the interpreter) measured up to about a second, and while the
+#: backlog after the jump is worked off at 20 Hz the node runs up to a second behind (20 clouds there lost 33-46)
+_CLOUD_QUEUE_S = 2.0
+#: with each sweep taken, two of the sweeps waiting are registered (the oldest first, the new one behind them; one
+#: in steady state), so the backlog left by the jump shrinks by one a sweep at least, and more while the whole
+#: call stays within this share of a LiDAR period: the rest is the process's other work (at 20 Hz, 0.5 of the
+#: period lost clouds in DDS, 33 of 600, while the backlog was worked off; docs/hsc4d/graph.md)
+_CATCH_UP_SHARE = 0.3
 _SUIT_INPUTS = ("suit pelvis imu", "suit odometry")  # the input names of the suit's topics
 _MAX_TRACKED = 1000  # sweeps whose receipt time is kept for the latency
 
@@ -147,11 +149,13 @@ class TrajectoryNode(GraphNode):
         self._catch_up_latency = LatencyWindow()  # ... sweeps after the sync that waited behind the backlog
         #: sweep stamp -> (monotonic s it was received, whether it came behind a backlog), sweeps after the sync
         self._received: dict[int, tuple[float, bool]] = {}
-        self._odometry_pub = self.create_publisher(Odometry, p["odometry_topic"], RELIABLE)
+        self._odometry_pub = self.create_publisher(Odometry, p["odometry_topic"], FUSED_ODOMETRY_QOS)
         self._map_pub = self.create_publisher(PointCloud2, p["map_topic"], LATCHED)
         self._offset_pub = self.create_publisher(Int64, p["offset_topic"], LATCHED)
         self._tf_pub = tf_publisher(self) if p["publish_tf"] else None
-        self.add_input("hip lidar", p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud, _CLOUD_INPUT)
+        clouds = QoSProfile(depth=int(np.ceil(_CLOUD_QUEUE_S * p["lidar_rate_hz"])), reliability=IMU_INPUT.reliability,
+                            durability=IMU_INPUT.durability)
+        self.add_input("hip lidar", p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud, clouds)
         suit = suit_input(p["suit_rate_hz"])
         self.add_input(_SUIT_INPUTS[0], p["pelvis_imu_topic"], Imu, p["suit_rate_hz"], self._on_pelvis, suit)
         self.add_input(_SUIT_INPUTS[1], p["suit_odometry_topic"], Odometry, p["suit_rate_hz"], self._on_suit_odometry,
@@ -239,7 +243,7 @@ class TrajectoryNode(GraphNode):
             while len(self._received) > _MAX_TRACKED:  # dropped from the backlog, never output
                 del self._received[next(iter(self._received))]
         start = time.monotonic()
-        steps = self.pipeline.add_sweep(sweep.points, sweep.point_ns, sweep.stamp_ns, max_register=1)
+        steps = self.pipeline.add_sweep(sweep.points, sweep.point_ns, sweep.stamp_ns, max_register=2)
         budget = _CATCH_UP_SHARE / self.params["lidar_rate_hz"]
         while self.pipeline.backlog and self.pipeline.offset_ns is not None and time.monotonic() - start < budget:
             steps += self.pipeline.catch_up(1)
