@@ -25,6 +25,12 @@ Per sweep (:meth:`LidarOdometry.register`):
    before a sliding registration reaches the map); the map is kiss-icp's voxel
    hash map of deskewed points, bounded by ``max_range_m`` round the sensor.
 
+Sweeps are registered at most ``max_rate_hz`` times a second (10: at 20 Hz
+every other one); a sweep in between keeps the initial guess of step 3
+(:data:`NOT_REGISTERED`) and adds nothing to the map, and the speed rule,
+the constant-velocity model and the caller's hand-eye measurements follow the
+registered sweeps.
+
 Poses are of the sensor frame L at the reference times, in the odometry frame
 O (L at the first sweep's reference time).
 
@@ -303,7 +309,8 @@ class LidarOdometry:
     def _guess(self, stamp_ns: int, dt: float, rotation: SweepRotation | None, suit: SuitTrack | None,
                vertical: VerticalShift | None) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
         """The predicted pose T_O_L at ``stamp_ns``, ``dt`` s after the last sweep: the IMU's rotation, the suit's
-        horizontal motion and the IMU's vertical where known, else the last sweep-to-sweep motion; and the suit's
+        horizontal motion and the IMU's vertical where known, else the motion between the last two registered
+        sweeps at the same rate; and the suit's
         horizontal motion and up (None if unknown)."""
         turn = self._delta[:3, :3]
         if self._delta_s > 0.0:  # constant velocity, scaled to this sweep's interval

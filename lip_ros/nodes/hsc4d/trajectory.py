@@ -77,7 +77,8 @@ _RESTART_NS = 1_000_000_000  # a sweep this far before the last one starts the t
 _MAX_TWIST_DT_S = 0.5  # the twist is left zero across a longer gap between outputs
 #: the cloud input keeps this much of clouds (SensorDataQoS otherwise): the longest callback (registering a few
 #: sweeps while the rest of the process also wants the interpreter) measured up to about a second, and while the
-#: backlog after the jump is worked off at 20 Hz the node runs up to a second behind (20 clouds there lost 33-46)
+#: backlog after the jump is worked off at 20 Hz the node runs up to a second behind (a queue of 20 clouds lost
+#: 33-46 of 600 there)
 _CLOUD_QUEUE_S = 2.0
 #: with each sweep taken, two of the sweeps waiting are registered (the oldest first, the new one behind them; one
 #: in steady state), so the backlog left by the jump shrinks by one a sweep at least, and more while the whole
