@@ -257,10 +257,9 @@ class LidarOdometry:
         guess, suit_motion = self._guess(stamp_ns, dt, rotation, suit, vertical)
         sigma = float(self._threshold.get_threshold())
         if not self._due(stamp_ns):
-            self.pose, self._stamp_ns = self._level(guess, stamp_ns, suit), stamp_ns
-            pose = self.pose
-            return OdometryStep(stamp_ns, pose, np.empty((0, 3)), 0, sigma, 0.0, 0.0, NOT_REGISTERED,
-                                self._tilt_deg(guess, stamp_ns, suit))
+            self.pose, tilt = self._level(guess, stamp_ns, suit)
+            self._stamp_ns = stamp_ns
+            return OdometryStep(stamp_ns, self.pose, np.empty((0, 3)), 0, sigma, 0.0, 0.0, NOT_REGISTERED, tilt)
         points = np.asarray(points, dtype=np.float64)
         point_ns = np.asarray(point_ns, dtype=np.int64)
         rng = np.linalg.norm(points, axis=1)
@@ -288,8 +287,7 @@ class LidarOdometry:
                                             (stamp_ns - since_ns) * 1e-9)
         if rejected:
             pose = guess
-        tilt = self._tilt_deg(pose, stamp_ns, suit)
-        pose = self._level(pose, stamp_ns, suit)
+        pose, tilt = self._level(pose, stamp_ns, suit)
         self._threshold.update_model_deviation(deviation)
         self._map.update(frame_down, pose)
         if self._registered_ns is not None:
@@ -332,22 +330,18 @@ class LidarOdometry:
             shift = horizontal + rise * up
         return self.pose @ _se3(turn, shift), suit_motion
 
-    def _tilt_deg(self, pose: np.ndarray, stamp_ns: int, suit: SuitTrack | None) -> float:
-        """How far ``pose``'s up is from the suit's gravity (deg; NaN without gravity or the suit)."""
+    def _level(self, pose: np.ndarray, stamp_ns: int, suit: SuitTrack | None) -> tuple[np.ndarray, float]:
+        """``pose`` with its up (gravity in L) turned ``gravity_gain`` of the way to the suit's, and how far it was
+        from it (deg); unchanged and NaN without gravity or the suit."""
         up = None if suit is None or self.gravity is None else suit.up_in_lidar(stamp_ns)
         if up is None:
-            return float("nan")
-        return float(np.degrees(np.arccos(np.clip((pose[:3, :3].T @ self.gravity) @ up, -1.0, 1.0))))
-
-    def _level(self, pose: np.ndarray, stamp_ns: int, suit: SuitTrack | None) -> np.ndarray:
-        """``pose`` with its up (gravity in L) turned ``gravity_gain`` of the way to the suit's, where known."""
-        up = None if suit is None or self.gravity is None else suit.up_in_lidar(stamp_ns)
-        if up is None:
-            return pose
-        full = matrix_to_axis_angle(rotation_between(up, pose[:3, :3].T @ self.gravity))
+            return pose, float("nan")
+        current = pose[:3, :3].T @ self.gravity
+        tilt = float(np.degrees(np.arccos(np.clip(current @ up, -1.0, 1.0))))
         out = pose.copy()
-        out[:3, :3] = pose[:3, :3] @ axis_angle_to_matrix(self.config.gravity_gain * full)
-        return out
+        out[:3, :3] = pose[:3, :3] @ axis_angle_to_matrix(
+            self.config.gravity_gain * matrix_to_axis_angle(rotation_between(up, current)))
+        return out, tilt
 
     def _speed_rule(self, step: np.ndarray, suit_horizontal: np.ndarray, up: np.ndarray, dt: float) -> str:
         """Why the registered motion ``step`` (T_Lprev_L) is not believed against the suit's horizontal motion over

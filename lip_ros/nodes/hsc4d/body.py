@@ -314,8 +314,9 @@ class BodyNode(GraphNode):
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
         now = time.monotonic()
         self._waiting.append((odometry.stamp_ns, odometry.frame_id, T, now, now + self.params["suit_wait_s"]))
-        if len(self._waiting) > self.params["max_waiting_poses"]:  # the oldest is posed now: with every suit
-            for name in self._suit_inputs:  # sample received (the executor takes one a topic per wait)
+        if len(self._waiting) > self.params["max_waiting_poses"]:
+            # the oldest pose goes now: first every suit sample received (the executor takes one a topic per wait)
+            for name in self._suit_inputs:
                 self.take_waiting(name)
         while len(self._waiting) > self.params["max_waiting_poses"]:
             self._pose(*self._waiting.popleft()[:4])
