@@ -146,8 +146,8 @@ class WearerFilter:
         up = self.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])  # the body's axis (M's y) in L
         d = points - self.mount.pelvis_in_lidar
         along = d @ up
-        radial = np.linalg.norm(d - along[:, None] * up, axis=1)
-        body = (radial < self.radius_m) & (along > -self.below_m) & (along < self.above_m)
+        radial_sq = np.einsum("na,na->n", d, d) - along**2
+        body = (radial_sq < self.radius_m**2) & (along > -self.below_m) & (along < self.above_m)
         return ~body & (np.einsum("na,na->n", points, points) >= self.near_m**2)
 
 
@@ -262,8 +262,8 @@ class LidarOdometry:
             return OdometryStep(stamp_ns, self.pose, np.empty((0, 3)), 0, sigma, 0.0, 0.0, NOT_REGISTERED, tilt)
         points = np.asarray(points, dtype=np.float64)
         point_ns = np.asarray(point_ns, dtype=np.int64)
-        rng = np.linalg.norm(points, axis=1)
-        keep = (rng >= c.min_range_m) & (rng <= c.max_range_m) & self.wearer.keep(points)
+        range_sq = np.einsum("na,na->n", points, points)
+        keep = (range_sq >= c.min_range_m**2) & (range_sq <= c.max_range_m**2) & self.wearer.keep(points)
         frame = self.deskew(points[keep], point_ns[keep], stamp_ns, rotation)
         frame_down = voxel_down_sample(frame, 0.5 * c.voxel_size_m)
         source = voxel_down_sample(frame_down, 1.5 * c.voxel_size_m)

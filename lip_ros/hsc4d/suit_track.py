@@ -15,6 +15,7 @@ stamped on the suit's clock and used once its offset from the LiDAR's is known
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from collections import deque
 
 import numpy as np
@@ -36,6 +37,7 @@ class SuitTrack:
         self.mount = mount or HipMountPrior()
         self.max_gap_ns = int(max_gap_ns)
         self._samples: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=capacity)
+        self._stamps: deque[int] = deque(maxlen=capacity)  # the samples' stamps, searched by bisection
         self.offset_ns: int | None = None
         self.T_M_L = self.mount.T_M_L  #: the mounting used: the nominal one until :meth:`set_mount`
         self._T_L_M = self.mount.T_L_M
@@ -62,6 +64,7 @@ class SuitTrack:
         if self._samples and stamp_ns <= self._samples[-1][0]:
             return "not after the newest sample"
         self._samples.append((int(stamp_ns), position, quat / norm))
+        self._stamps.append(int(stamp_ns))
         return None
 
     def pelvis(self, t_ns: int) -> np.ndarray | None:
@@ -69,10 +72,9 @@ class SuitTrack:
         if self.offset_ns is None or len(self._samples) < 2:
             return None
         t = int(t_ns) + self.offset_ns
-        stamps = np.fromiter((s[0] for s in self._samples), dtype=np.int64, count=len(self._samples))
-        hi = int(np.searchsorted(stamps, t))
-        if hi == 0 or hi == stamps.size:
-            if hi == 0 and stamps[0] == t:
+        hi = bisect_left(self._stamps, t)
+        if hi == 0 or hi == len(self._stamps):
+            if hi == 0 and self._stamps[0] == t:
                 hi = 1
             else:
                 return None

@@ -32,7 +32,7 @@ import rclpy
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.callback_groups import CallbackGroup, MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -75,6 +75,24 @@ def suit_input(rate_hz: float) -> QoSProfile:
     """SensorDataQoS for a suit topic of ``rate_hz``, :data:`SUIT_QUEUE_S` deep."""
     return QoSProfile(depth=int(np.ceil(SUIT_QUEUE_S * rate_hz)), reliability=IMU_INPUT.reliability,
                       durability=IMU_INPUT.durability, history=IMU_INPUT.history)
+
+
+class _NotWaitedOn(CallbackGroup):
+    """The group of the polled inputs: an executor leaves its entities out of its wait set (their node takes
+    their messages itself). Their QoS event handlers go with them: a polled input is best effort, which matches
+    any publisher's reliability."""
+
+    def can_execute(self, entity: Any) -> bool:
+        return False
+
+    def beginning_execution(self, entity: Any) -> bool:
+        return False
+
+    def ending_execution(self, entity: Any) -> None:
+        pass
+
+
+_NOT_WAITED_ON = _NotWaitedOn()
 
 
 class ParameterError(ValueError):
@@ -223,6 +241,7 @@ class GraphNode(Node):
         self.frames: Counter[str] = Counter()  # "frames <what>" of the diagnostics, without the prefix
         self._inputs: dict[str, tuple[str, type, SensorMonitor]] = {}
         self._takers: dict[str, tuple[Subscription, Callable[[Any], None]]] = {}  # by input name
+        self._polled: list[str] = []  # the inputs no executor waits on (:meth:`take_polled`)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)  # also ticks while a bag's /clock is paused or over
         self.create_timer(self.params["diagnostics_period_s"], self._on_diagnostics_timer, self.group,
@@ -260,10 +279,14 @@ class GraphNode(Node):
         return self.get_clock().now().nanoseconds
 
     def add_input(self, name: str, topic: str, msg_type: type, rate_hz: float, handle: Callable[[Any], int],
-                  qos: QoSProfile = qos_profile_sensor_data, raw: bool = False) -> None:
+                  qos: QoSProfile = qos_profile_sensor_data, raw: bool = False, polled: bool = False) -> None:
         """Subscribe ``handle`` (returns the message stamp, raises MalformedMessageError to reject) with a
         monitor of the input's rate, age and rejections on /diagnostics; with ``raw`` it gets the message's CDR
-        bytes (a fast input decoded later, in batches)."""
+        bytes (a fast input decoded later, in batches). A ``polled`` input is not waited on by the executor: the
+        node takes its messages itself with :meth:`take_polled` (from a timer, or when it needs them), so that
+        a fast input of small messages costs no executor wake-up each (the HSC4D body node's 17 suit IMUs at
+        100 Hz: half its CPU went to rclpy rebuilding its wait set); its queue must hold what comes between two
+        takes."""
         monitor = SensorMonitor(name, expected_rate_hz=rate_hz, stale_after_s=self.params["stale_after_s"])
         self._inputs[name] = (topic, msg_type, monitor)
 
@@ -275,8 +298,17 @@ class GraphNode(Node):
                 monitor.reject(now, str(exc).split(":")[0][:60])
                 self.get_logger().warning(f"{name} ({topic}): message skipped: {exc}", throttle_duration_sec=5.0)
 
-        self._takers[name] = (self.create_subscription(msg_type, topic, callback, qos, callback_group=self.group,
+        if polled and qos.reliability != ReliabilityPolicy.BEST_EFFORT:
+            raise ValueError(f"polled input {name} must be best effort (no QoS event of it is handled)")
+        group = _NOT_WAITED_ON if polled else self.group
+        self._takers[name] = (self.create_subscription(msg_type, topic, callback, qos, callback_group=group,
                                                        raw=raw), callback)
+        if polled:
+            self._polled.append(name)
+
+    def take_polled(self) -> int:
+        """Handle every message received on the polled inputs (:meth:`add_input`); how many."""
+        return sum(self.take_waiting(name) for name in self._polled)
 
     def take_waiting(self, name: str) -> int:
         """Handle every message of input ``name`` received and not yet taken; how many. rclpy's executor takes

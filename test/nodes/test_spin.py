@@ -1,16 +1,18 @@
 """How a graph's spinning threads tell a shutdown from a failure (rclpy in this process, no traffic), and how a
-node takes a fast input's waiting messages itself (over DDS)."""
+node takes a fast input's waiting messages itself, and polls an input no executor waits on (over DDS)."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import pytest
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import Int64
 
-from lip_ros.nodes.base import GraphNode, _spin_each, suit_input
+from lip_ros.nodes.base import RELIABLE, GraphNode, _spin_each, suit_input
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
 
 pytestmark = pytest.mark.ros
@@ -82,6 +84,57 @@ def test_take_waiting_handles_every_message_already_received() -> None:
         assert probe.handled == list(range(1, 51)) and taken == 50
         assert probe.take_waiting("probe") == 0
     finally:
+        driver.destroy_node()
+        probe.destroy_node()
+        rclpy.try_shutdown()
+
+
+class _PolledProbe(GraphNode):
+    """A graph node with one input the executor waits on and one it polls."""
+
+    NAME = "lip_ros_test_polled"
+    PARAMS_FILE = LIP_PARAMS_FILE
+
+    def __init__(self) -> None:
+        super().__init__(self.NAME)
+        self.handled: dict[str, list[int]] = {"spun": [], "polled": []}
+        for name in self.handled:
+            self.add_input(name, f"/lip_ros_test/{name}", Int64, 100.0,
+                           lambda msg, name=name: self.handled[name].append(msg.data) or msg.data, suit_input(100.0),
+                           polled=name == "polled")
+
+
+def test_a_polled_input_is_taken_only_when_the_node_polls_it() -> None:
+    """An executor spinning the node handles the other input's messages but never the polled one's (it is not in
+    its wait set); take_polled then handles every one received, in order, through the input's handler."""
+    rclpy.init()
+    probe = _PolledProbe()
+    driver = rclpy.create_node("lip_ros_test_polled_driver")
+    publishers = {name: driver.create_publisher(Int64, f"/lip_ros_test/{name}", suit_input(100.0))
+                  for name in probe.handled}
+    executor = SingleThreadedExecutor()
+    executor.add_node(probe)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        deadline = time.monotonic() + 10.0
+        while (min(p.get_subscription_count() for p in publishers.values()) == 0
+               and time.monotonic() < deadline):
+            time.sleep(0.05)
+        for k in range(1, 21):
+            for publisher in publishers.values():
+                publisher.publish(Int64(data=k))
+        while len(probe.handled["spun"]) < 20 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.2)  # the executor had every chance to take the polled ones too
+        assert probe.handled == {"spun": list(range(1, 21)), "polled": []}
+        assert probe.take_polled() == 20 and probe.handled["polled"] == list(range(1, 21))
+        assert probe.take_polled() == 0
+        with pytest.raises(ValueError, match="best effort"):
+            probe.add_input("reliable", "/lip_ros_test/reliable", Int64, 10.0, lambda msg: msg.data, RELIABLE,
+                            polled=True)
+    finally:
+        executor.shutdown()
         driver.destroy_node()
         probe.destroy_node()
         rclpy.try_shutdown()

@@ -95,6 +95,7 @@ class _Sweep:
     points: np.ndarray
     point_ns: np.ndarray
     received: float  # monotonic s
+    end_ns: int  # the time of its last point
 
 
 class TrajectoryNode(GraphNode):
@@ -176,7 +177,8 @@ class TrajectoryNode(GraphNode):
         if points.shape[0] == 0:
             self.count_frame("skipped: empty cloud", f"{stamp_ns}: no finite point")
             return stamp_ns
-        self._waiting.append(_Sweep(stamp_ns, points.astype(np.float64), stamp_ns + t.astype(np.int64), received))
+        point_ns = stamp_ns + t.astype(np.int64)
+        self._waiting.append(_Sweep(stamp_ns, points.astype(np.float64), point_ns, received, int(point_ns.max())))
         self._take_suit()
         while len(self._waiting) > self.params["max_waiting_sweeps"]:
             self._take(self._waiting.popleft())  # goes on with the suit data there is
@@ -189,6 +191,7 @@ class TrajectoryNode(GraphNode):
         if reason is not None:
             raise MalformedMessageError(reason)
         self._suit_ns["imu"] = sample.stamp_ns
+        self._take_covered()
         return sample.stamp_ns
 
     def _on_suit_odometry(self, msg: Odometry) -> int:
@@ -197,6 +200,7 @@ class TrajectoryNode(GraphNode):
         if reason is not None:
             raise MalformedMessageError(reason)
         self._suit_ns["odometry"] = odometry.stamp_ns
+        self._take_covered()
         return odometry.stamp_ns
 
     def _take_suit(self) -> None:
@@ -210,8 +214,14 @@ class TrajectoryNode(GraphNode):
         offset = self.pipeline.offset_ns
         if offset is None:
             return True
-        end = int(sweep.point_ns.max()) + offset
+        end = sweep.end_ns + offset
         return all(s is not None and s >= end for s in self._suit_ns.values())
+
+    def _take_covered(self) -> None:
+        """Once synced, take the waiting sweeps the suit now covers as its samples come in (not at the next
+        drain: a sweep waited up to the drain's period, 20 ms, after its suit data was in)."""
+        while self.pipeline.offset_ns is not None and self._waiting and self._suit_covers(self._waiting[0]):
+            self._take(self._waiting.popleft())
 
     def _drain(self) -> None:
         """Take the waiting sweeps the suit covers, or that waited long enough; else register one sweep of the
