@@ -174,25 +174,48 @@ def check_params_files(argv: Sequence[str], known: dict[str, set[str]]) -> None:
 
 
 class LatencyWindow:
-    """The most recent latencies (ms) and their percentiles."""
+    """Latencies (ms): percentiles over every one added (a histogram of bins 0.5 % wide, so bounded over any run)
+    and over the most recent ``size``."""
+
+    #: bin edges of the whole run's histogram (ms): 0.01 ms to 1000 s, each 0.5 % wider than the last
+    _EDGES = np.geomspace(1e-2, 1e6, int(np.ceil(np.log(1e8) / np.log(1.005))) + 1)
 
     def __init__(self, size: int = 1000) -> None:
         self._ms: deque[float] = deque(maxlen=size)
+        self._counts = np.zeros(self._EDGES.size + 1, dtype=np.int64)  # [0]: below the first edge; [-1]: above
+        self._max = 0.0
         self.count = 0  # latencies added in all
 
     def add(self, seconds: float) -> None:
         """One latency, in seconds."""
-        self._ms.append(1e3 * seconds)
+        ms = 1e3 * seconds
+        self._ms.append(ms)
+        self._counts[np.searchsorted(self._EDGES, ms, side="right")] += 1
+        self._max = max(self._max, ms)
         self.count += 1
 
+    def percentiles(self, q: Sequence[float]) -> list[float]:
+        """The whole run's percentiles ``q`` (0-100), ms, each to 0.5 % (the geometric middle of its bin)."""
+        cumulative = np.cumsum(self._counts)
+        out = []
+        for p in q:
+            k = int(np.searchsorted(cumulative, max(p / 100.0 * self.count, 1.0)))
+            if k >= self._EDGES.size:  # beyond the last edge
+                out.append(self._max)
+            else:
+                out.append(min(float(np.sqrt(self._EDGES[max(k - 1, 0)] * self._EDGES[k])), self._max))
+        return out
+
     def values(self, prefix: str) -> dict[str, str]:
-        """Diagnostic values ``<prefix>_p50/_p90/_p99/_max`` (ms) over the window; empty without data."""
+        """Diagnostic values (ms): ``<prefix>_p50/_p90/_p99/_max`` over the whole run, ``<prefix>_recent_p50/_p99``
+        over the most recent; empty without data."""
         if not self._ms:
             return {}
-        ms = np.array(self._ms)
-        p50, p90, p99 = np.percentile(ms, [50, 90, 99])
+        p50, p90, p99 = self.percentiles([50, 90, 99])
+        recent = np.percentile(np.array(self._ms), [50, 99])
         return {f"{prefix}_p50": f"{p50:.1f}", f"{prefix}_p90": f"{p90:.1f}", f"{prefix}_p99": f"{p99:.1f}",
-                f"{prefix}_max": f"{ms.max():.1f}"}
+                f"{prefix}_max": f"{self._max:.1f}", f"{prefix}_recent_p50": f"{recent[0]:.1f}",
+                f"{prefix}_recent_p99": f"{recent[1]:.1f}"}
 
 
 class FrameArrivals:

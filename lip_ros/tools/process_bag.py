@@ -186,6 +186,11 @@ def _poses(bag: Path, topic: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
+def _percentiles(values: dict[str, str], prefix: str) -> dict[str, float]:
+    """The whole run's latency percentiles and maximum (ms) of a status's values ``<prefix>p50`` ... ``max``."""
+    return {k: float(values[prefix + k]) for k in ("p50", "p90", "p99", "max") if prefix + k in values}
+
+
 def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined: Path | None = None
                       ) -> ProcessSummary:
     """Frame accounting (last /diagnostics of the nodes) and accuracy against the inputs' truth (HSC4D: also of
@@ -203,16 +208,14 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined
     pending = sum(int(values.get("pending", 0)) for name, values in last.items() if name.endswith(": frames"))
     if pending:  # waiting for DOT data past the end of the bag
         frames["pending"] = pending
-    latency = {k.removeprefix(branch.latency_prefix): float(v) for k, v in last[branch.latency_status].items()
-               if k.startswith(branch.latency_prefix)}
+    latency = _percentiles(last[branch.latency_status], branch.latency_prefix)
     summary = ProcessSummary(bag_topics(inputs)[branch.lidar].count, frames, max(received.values(), default=None),
                              latency, branch.latency_of,
                              dot_latency=last.get(CALIBRATION_FRAMES, {}).get(DOT_LATENCY_VALUE, ""))
     if branch is HSC4D:
         offset = next((v.get(OFFSET_VALUE) for v in last.values() if OFFSET_VALUE in v), "")
         summary.offset_ms = "" if offset in ("", "unknown") else offset
-        summary.catch_up_ms = {k.removeprefix(CATCH_UP_PREFIX): float(v)
-                               for k, v in last[branch.latency_status].items() if k.startswith(CATCH_UP_PREFIX)}
+        summary.catch_up_ms = _percentiles(last[branch.latency_status], CATCH_UP_PREFIX)
         summary.hsc4d = hsc4d_accuracy(inputs, outputs, round(float(offset) * 1e6) if summary.offset_ms else None,
                                        refined)
         return summary
