@@ -5,9 +5,11 @@ sees the jump as free fall: the pelvis IMU's specific force drops to nearly
 zero between take-off and landing (:func:`suit_apex`); the middle of that
 flight is the apex, stamped on the suit's clock. The LiDAR odometry sees the
 jump as a parabola of the sensor's height, which is rigid to the pelvis
-(:func:`lidar_apex`): the frames near the highest one are fitted with the
-parabola of free fall (the curvature is gravity's, so two frames fix it),
-whose vertex is the apex on the LiDAR's clock, between frames. The offset is
+(:func:`lidar_apex`): the frames of each rise above the standing height, near
+its highest, are fitted with the parabola of free fall (the curvature is
+gravity's, so two frames fix it), whose vertex is the apex on the LiDAR's
+clock, between frames; a rise that does not fall freely (the arms swung
+before take-off) is not the jump. The offset is
 suit apex minus LiDAR apex (:class:`JumpSync` collects both streams online,
 bounded, and says what it waits for).
 """
@@ -34,12 +36,16 @@ class JumpSyncConfig:
     max_flight_s: float = 1.0  # longer ones are not a jump in place (a fall, a sensor fault)
     min_rise_m: float = 0.05  # the LiDAR's height rises this much above its median in a jump
     flight_margin_s: float = 0.02  # LiDAR frames this close to take-off or landing are not fitted
+    # a rise whose frames fit the free-fall parabola this much worse (RMS) than the best-fitting rise's is not the
+    # jump (at 20 Hz the arms' swing before take-off lifts the hip 5-15 cm for five sweeps: a rise of its own)
+    fit_tolerance_m: float = 0.03
     max_offset_s: float = 2.0  # the clocks are at most this far apart
     buffer_s: float = 30.0  # data kept while waiting for the jump
 
     def __post_init__(self) -> None:
         if not (0.0 < self.free_fall < 1.0 and self.smooth_s >= 0.0 and 0.0 < self.min_flight_s < self.max_flight_s
-                and self.min_rise_m > 0.0 and self.flight_margin_s >= 0.0 and self.max_offset_s > 0.0
+                and self.min_rise_m > 0.0 and self.flight_margin_s >= 0.0 and self.fit_tolerance_m > 0.0
+                and self.max_offset_s > 0.0
                 and self.buffer_s > self.max_flight_s):
             raise ValueError(f"invalid {self}")
 
@@ -80,33 +86,43 @@ def suit_apex(stamp_ns: np.ndarray, specific_force: np.ndarray, config: JumpSync
     return None
 
 
+def _free_fall_fit(t: np.ndarray, z: np.ndarray, top: int, reach_s: float) -> tuple[float, float] | None:
+    """The free-fall parabola through the frames in the air round frame ``top``, those within ``reach_s`` of its
+    apex (found from the top frame on): (apex time ns, RMS residual m; 0 with two frames), None with fewer."""
+    s = (t - t[top]) * 1e-9  # seconds from the top frame
+    apex, residual = 0.0, np.zeros(0)
+    for _ in range(3):  # the frames in the air depend on the apex
+        air = np.flatnonzero(np.abs(s - apex) <= reach_s)
+        if air.size < 2:
+            return None
+        # z = z_a - g/2 (s - s_a)^2  <=>  z + g/2 s^2 = (z_a - g/2 s_a^2) + g s_a s: a line in s
+        y = z[air] + 0.5 * GRAVITY * s[air] ** 2
+        slope, intercept = np.polyfit(s[air], y, 1)
+        apex, residual = slope / GRAVITY, y - (intercept + slope * s[air])
+    return float(t[top] + apex * 1e9), float(np.sqrt(np.mean(residual**2)))
+
+
 def lidar_apex(stamp_ns: np.ndarray, height_m: np.ndarray, flight_s: float, config: JumpSyncConfig | None = None,
                near_ns: float | None = None) -> float | None:
     """The apex time (ns) of a jump in the sensor's height trajectory (N,) at ``stamp_ns`` (N,) sorted, a jump
-    whose flight lasts ``flight_s`` (the suit's): of the runs of frames ``min_rise_m`` above the median height,
-    the first, or the one whose highest frame is nearest ``near_ns``; the free-fall parabola fitted to the
-    frames in the air, those within half the flight (less ``flight_margin_s``) of the apex, found from the
-    highest frame on (None: no jump, or fewer than two frames in the air)."""
+    whose flight lasts ``flight_s`` (the suit's): each run of frames ``min_rise_m`` above the median height is
+    fitted with the free-fall parabola through its frames in the air (those within half the flight, less
+    ``flight_margin_s``, of the apex, found from its highest frame on); of the runs that fall freely (an RMS
+    residual within ``fit_tolerance_m`` of the best fit's), the first, or the one whose apex is nearest
+    ``near_ns`` (None: no jump, or fewer than two frames in the air)."""
     c = config or JumpSyncConfig()
     t = np.asarray(stamp_ns, dtype=np.int64)
     z = np.asarray(height_m, dtype=np.float64)
     up = z > np.median(z) + c.min_rise_m if z.size else np.zeros(0, dtype=bool)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], up.astype(np.int8), [0]])))
-    runs = edges.reshape(-1, 2)  # [first, end) of each run above
-    if not runs.size:
+    reach = max(0.5 * flight_s - c.flight_margin_s, 0.0)
+    fits = [f for a, b in edges.reshape(-1, 2)  # [first, end) of each run above
+            if (f := _free_fall_fit(t, z, a + int(np.argmax(z[a:b])), reach)) is not None]
+    if not fits:
         return None
-    tops = np.array([a + int(np.argmax(z[a:b])) for a, b in runs])
-    top = int(tops[0] if near_ns is None else tops[np.argmin(np.abs(t[tops] - near_ns))])
-    s = (t - t[top]) * 1e-9  # seconds from the highest frame
-    apex, reach = 0.0, max(0.5 * flight_s - c.flight_margin_s, 0.0)
-    for _ in range(3):  # the frames in the air depend on the apex
-        air = np.flatnonzero(np.abs(s - apex) <= reach)
-        if air.size < 2:
-            return None
-        # z = z_a - g/2 (s - s_a)^2  <=>  z + g/2 s^2 = (z_a - g/2 s_a^2) + g s_a s: a line in s
-        slope, _ = np.polyfit(s[air], z[air] + 0.5 * GRAVITY * s[air] ** 2, 1)
-        apex = slope / GRAVITY
-    return float(t[top] + apex * 1e9)
+    best = min(rms for _, rms in fits)
+    apexes = np.array([apex for apex, rms in fits if rms <= best + c.fit_tolerance_m])
+    return float(apexes[0] if near_ns is None else apexes[np.argmin(np.abs(apexes - near_ns))])
 
 
 class JumpSync:

@@ -63,6 +63,23 @@ def test_the_apex_of_ballistic_jumps_is_found_on_both_clocks():
     assert np.percentile(np.abs(offset_err), 90) < 0.015 and np.abs(offset_err).max() < 0.045
 
 
+def test_a_rise_that_does_not_fall_freely_is_not_the_jump():
+    """20 Hz heights as the hip LiDAR saw seed 5's jump: the arms' swing lifts the hip 7-15 cm for five sweeps
+    0.35 s before the jump (a rise of its own, nearest the suit's apex on the suit's clock, 0.34 s behind the
+    LiDAR's), then the jump rising 24 cm: the jump's apex is taken, not the swing's (it was, before the fit's
+    residual chose between the rises)."""
+    rise = 0.2
+    frames = np.arange(0.0, 10.0, 0.05) + 0.013
+    height = ballistic_jump(frames, rise)[0]
+    swing = (frames > APEX_S - 0.6) & (frames < APEX_S - 0.36)
+    height[swing] = 1.0 + np.array([0.07, 0.10, 0.07, 0.09, 0.15])[: swing.sum()]
+    height += np.random.default_rng(5).normal(0.0, 0.005, frames.size)
+    flight = 2.0 * np.sqrt(2.0 * rise / GRAVITY)
+    near = (APEX_S - 0.4) * 1e9  # the suit's apex taken on the LiDAR's clock
+    apex = lidar_apex(np.rint(frames * 1e9).astype(np.int64), height, flight, near_ns=near)
+    assert apex is not None and abs(apex * 1e-9 - APEX_S) < 0.01
+
+
 def test_no_jump_no_apex():
     t = np.arange(0, 1000) * 10_000_000
     assert suit_apex(t, np.full(t.size, GRAVITY)) is None
