@@ -94,6 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, choices=(10.0, 20.0), default=10.0)
     parser.add_argument("--max-registration-hz", type=float, default=OdometryConfig.max_rate_hz,
                         help="sweeps registered at most this often, the others posed by the suit's motion (0: all)")
+    parser.add_argument("--mount-tilt-up", type=float, default=SiteCaptureConfig.mount_tilt_up_deg, metavar="DEG",
+                        help="a rig variant: the hip LiDAR's true tilt up (before each seed's +-5 deg); the method is "
+                             "told the nominal 30 deg")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     config = TrajectoryConfig(odometry=OdometryConfig(max_rate_hz=args.max_registration_hz))
@@ -102,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seeds:
         t0 = time.perf_counter()
         capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=args.seconds, columns=args.columns,
-                                                rate_hz=args.rate))
+                                                rate_hz=args.rate, mount_tilt_up_deg=args.mount_tilt_up))
 
         def progress(k: int, n: int, seed: int = seed) -> None:
             if k % 100 == 0 or k == n - 1:

@@ -188,3 +188,17 @@ def test_the_hip_clouds_put_in_the_world_with_the_true_sensor_poses_lie_on_the_s
             out_list.append(np.median(np.abs(w[low, 2] - ground[low])))
     assert np.median(errors) < 0.02
     assert np.median(first_pose) > 2.0 * np.median(errors)
+
+
+def test_a_mount_tilt_variant_tilts_the_true_mounting_only():
+    """``mount_tilt_up_deg`` moves the true tilt (each seed still perturbs it by up to 5 deg) and nothing else of
+    the capture; a tilt off the rig's range is refused."""
+    nominal, variant = (SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, mount_tilt_up_deg=tilt))
+                        for tilt in (SiteCaptureConfig.mount_tilt_up_deg, 15.0))
+    assert abs(variant.mount.tilt_up_deg - nominal.mount.tilt_up_deg + 15.0) < 1e-9
+    assert abs(variant.mount.tilt_up_deg - 15.0) <= 5.0
+    np.testing.assert_array_equal(variant.mount.lever_m, nominal.mount.lever_m)
+    t = np.linspace(1.0, 10.0, 5)
+    np.testing.assert_array_equal(variant.truth(t).pelvis, nominal.truth(t).pelvis)
+    with pytest.raises(ValueError):
+        SiteCaptureConfig(mount_tilt_up_deg=75.0)
