@@ -59,8 +59,12 @@ from lip_ros.rig.mesh_raycast import MeshRaycaster
 from lip_ros.rig.site_capture import SiteCapture
 from lip_ros.rig.terrain import Terrain
 
-__all__ = ["METHODS", "ABLATIONS", "MAPS", "TrajectoryRun", "capture_sweeps", "run_capture", "aligned",
+__all__ = ["METHODS", "ABLATIONS", "MAPS", "TrajectoryRun", "CaptureLost", "capture_sweeps", "run_capture", "aligned",
            "trajectory_metrics", "body_metrics", "map_metrics"]
+
+class CaptureLost(RuntimeError):
+    """The live pipeline gave no trajectory for a capture, or not for every sweep (the jump not synced, ...)."""
+
 
 #: the trajectories compared, in report order
 METHODS = ("baseline1_suit", "baseline2_lidar", "lidar_with_suit", "live", "live_optimised", "refined_graph", "refined")
@@ -136,7 +140,8 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                 progress: Callable[[int, int], None] | None = None,
                 scene: SceneOptimisationConfig | None = None) -> TrajectoryRun:
     """Play ``capture`` through a :class:`CaptureRefiner` (``progress(k, n)`` after each sweep), pose the body on
-    each method's trajectory and optimise the live one and refine the capture with ``scene``."""
+    each method's trajectory and optimise the live one and refine the capture with ``scene``; :class:`CaptureLost`
+    if a sweep was not posed."""
     scene = scene or SceneOptimisationConfig()
     refiner = CaptureRefiner(RefinementConfig(trajectory=config or TrajectoryConfig(), scene=scene))
     pipeline = refiner.pipeline
@@ -158,9 +163,9 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
         if progress is not None:
             progress(k, n)
     if pipeline.offset_ns is None or not steps:
-        raise RuntimeError(f"capture {capture.config.seed}: no trajectory ({pipeline.status})")
+        raise CaptureLost(f"capture {capture.config.seed}: no trajectory ({pipeline.status})")
     if refiner.counts:
-        raise RuntimeError(f"capture {capture.config.seed}: sweeps not kept: {dict(refiner.counts)}")
+        raise CaptureLost(f"capture {capture.config.seed}: sweeps not kept: {dict(refiner.counts)}")
     maps.append((steps - 1, pipeline.map_points()))
     live = refiner.record
     t_s = (live.stamps_ns - capture.epoch_ns) * 1e-9
