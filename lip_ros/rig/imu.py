@@ -106,10 +106,11 @@ class ImuRigConfig:
                    heading_spread_deg=heading_spread_deg, latency_s=latency_s)
 
     @classmethod
-    def suit(cls, skeleton: Skeleton) -> ImuRigConfig:
-        """The HSC4D suit (``suit_imus``): 17 segments, 100 Hz, calibrated mounting, clock offset up to 1 s."""
+    def suit(cls, skeleton: Skeleton, rate_hz: float = 100.0) -> ImuRigConfig:
+        """The HSC4D suit (``suit_imus``): 17 segments, 100 Hz (the contract's), calibrated mounting, clock offset
+        up to 1 s."""
         sensors = tuple((seg, joint, suit_imu_topic(seg)) for seg, joint in skeleton.suit_imus.items())
-        return cls(sensors, 100.0, shared_clock=True, max_clock_offset_s=1.0)
+        return cls(sensors, rate_hz, shared_clock=True, max_clock_offset_s=1.0)
 
 
 @dataclass(frozen=True, eq=False)

@@ -21,7 +21,7 @@ Writes DIR/metrics.json and DIR/trajectories.png (per capture: top view and
 height over time, the five trajectories against the truth). A capture the
 live pipeline does not pose sweep by sweep (the jump not synced, ...) is
 reported as lost and left out of the means; the exit status is then 1.
-``--mount-tilt-up DEG``: a rig variant, the hip LiDAR's true tilt moved.
+Rig variants: ``--mount-tilt-up DEG`` (the hip LiDAR's true tilt), ``--suit-rate HZ`` (the suit's rate).
 Held-out seeds: 1000 and up (development used 0-20).
 """
 
@@ -100,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mount-tilt-up", type=float, default=SiteCaptureConfig.mount_tilt_up_deg, metavar="DEG",
                         help="a rig variant: the hip LiDAR's true tilt up (before each seed's +-5 deg); the method is "
                              "told the nominal 30 deg")
+    parser.add_argument("--suit-rate", type=float, default=SiteCaptureConfig.suit_rate_hz, metavar="HZ",
+                        help="a rig variant: the suit's IMUs and odometry at this rate; the method is told 100 Hz")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     config = TrajectoryConfig(odometry=OdometryConfig(max_rate_hz=args.max_registration_hz))
@@ -108,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seeds:
         t0 = time.perf_counter()
         capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=args.seconds, columns=args.columns,
-                                                rate_hz=args.rate, mount_tilt_up_deg=args.mount_tilt_up))
+                                                rate_hz=args.rate, mount_tilt_up_deg=args.mount_tilt_up,
+                                                suit_rate_hz=args.suit_rate))
 
         def progress(k: int, n: int, seed: int = seed) -> None:
             if k % 100 == 0 or k == n - 1:

@@ -202,3 +202,17 @@ def test_a_mount_tilt_variant_tilts_the_true_mounting_only():
     np.testing.assert_array_equal(variant.truth(t).pelvis, nominal.truth(t).pelvis)
     with pytest.raises(ValueError):
         SiteCaptureConfig(mount_tilt_up_deg=75.0)
+
+
+def test_a_suit_rate_variant_samples_the_imus_and_the_odometry_at_that_rate():
+    """``suit_rate_hz``: every segment and the suit's odometry at the variant's rate, the suit's clock and the
+    motion as in the contract's 100 Hz capture."""
+    nominal = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
+    variant = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, suit_rate_hz=240.0))
+    for capture, rate in ((nominal, 100.0), (variant, 240.0)):
+        periods = [np.median(np.diff(s.stamp_ns)) for s in capture.suit_streams().values()]
+        periods.append(np.median(np.diff(capture.suit_odometry().stamp_ns)))
+        np.testing.assert_allclose(periods, 1e9 / rate, rtol=1e-3)
+    assert variant.suit.clock_offset_s == nominal.suit.clock_offset_s
+    with pytest.raises(ValueError):
+        SiteCaptureConfig(suit_rate_hz=5.0)
