@@ -62,6 +62,7 @@ from lip_ros.rig.terrain import Terrain
 __all__ = ["METHODS", "ABLATIONS", "MAPS", "TrajectoryRun", "CaptureLost", "capture_sweeps", "run_capture", "aligned",
            "trajectory_metrics", "body_metrics", "map_metrics"]
 
+
 class CaptureLost(RuntimeError):
     """The live pipeline gave no trajectory for a capture, or not for every sweep (the jump not synced, ...)."""
 

@@ -10,12 +10,14 @@ from lip_ros.outputs import PoseTopics
 
 __all__ = ["HIP_LIDAR_TOPIC", "SUIT_ODOMETRY_TOPIC", "suit_imu_topic", "ODOMETRY_TOPIC", "MAP_TOPIC",
            "SUIT_CLOCK_OFFSET_TOPIC", "MAP_FRAME", "PELVIS_FRAME", "HSC4D_TOPICS", "OPTIMISED_ODOMETRY_TOPIC",
-           "OPTIMISED_TOPICS", "REFINED_ODOMETRY_TOPIC", "REFINED_TOPICS", "REFINED_MAP_TOPIC"]
+           "OPTIMISED_TOPICS", "REFINED_ODOMETRY_TOPIC", "REFINED_TOPICS", "REFINED_MAP_TOPIC", "SUIT_RATE_HZ"]
 
 #: The hip-worn Ouster's PointCloud2.
 HIP_LIDAR_TOPIC = "/hip/points"
 #: The suit's own root trajectory (nav_msgs/Odometry, its clock).
 SUIT_ODOMETRY_TOPIC = "/mocap/odometry"
+#: The rate of each suit segment's IMU and of the suit's odometry (samples per second).
+SUIT_RATE_HZ = 100.0
 
 
 def suit_imu_topic(segment: str) -> str:

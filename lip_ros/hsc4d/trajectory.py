@@ -50,6 +50,7 @@ from lip_ros.hsc4d.map_frame import MapFrame, MapFrameConfig, estimate_map_frame
 from lip_ros.hsc4d.mount import HipMountPrior, LeverArmEstimator, MountYawEstimator, levelled_mount_rotation
 from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
 from lip_ros.hsc4d.pose_graph import LiveTrajectoryGraph, PoseGraphConfig, fuse_batch
+from lip_ros.hsc4d.sensors import SUIT_RATE_HZ
 from lip_ros.hsc4d.suit_track import SuitTrack
 from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
 
@@ -76,7 +77,7 @@ class TrajectoryConfig:
     max_scale_error: float = 0.2  # the scale is kept within 1 -+ this
     record_s: float = 3600.0  # each sweep's factors kept this long for the offline refinement (256 B a sweep)
     seed: int = 0  # of the RANSAC fits
-    suit_rate_hz: float = 100.0  # samples per second of each suit stream (the contract's 100), to size its buffers
+    suit_rate_hz: float = SUIT_RATE_HZ  # samples per second of each suit stream, to size its buffers
 
     @property
     def suit_capacity(self) -> int:

@@ -34,7 +34,7 @@ from lip_msgs_py import ImuSample, imu_sample
 from lip_ros.core.frames import GRAVITY
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, matrix_to_quat, rot_z
 from lip_ros.core.skeleton import Skeleton
-from lip_ros.hsc4d.sensors import suit_imu_topic
+from lip_ros.hsc4d.sensors import SUIT_RATE_HZ, suit_imu_topic
 from lip_ros.lip.sensors import IMU_TOPICS
 from lip_ros.rig.trajectory import Trajectory
 
@@ -106,9 +106,9 @@ class ImuRigConfig:
                    heading_spread_deg=heading_spread_deg, latency_s=latency_s)
 
     @classmethod
-    def suit(cls, skeleton: Skeleton, rate_hz: float = 100.0) -> ImuRigConfig:
-        """The HSC4D suit (``suit_imus``): 17 segments, 100 Hz (the contract's), calibrated mounting, clock offset
-        up to 1 s."""
+    def suit(cls, skeleton: Skeleton, rate_hz: float = SUIT_RATE_HZ) -> ImuRigConfig:
+        """The HSC4D suit (``suit_imus``): 17 segments at the contract's rate, calibrated mounting, clock offset up to
+        1 s."""
         sensors = tuple((seg, joint, suit_imu_topic(seg)) for seg, joint in skeleton.suit_imus.items())
         return cls(sensors, rate_hz, shared_clock=True, max_clock_offset_s=1.0)
 

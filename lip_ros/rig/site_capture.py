@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from lip_ros.core.body import BodyModel
+from lip_ros.hsc4d.sensors import SUIT_RATE_HZ
 from lip_ros.rig.capture import EPOCH_NS
 from lip_ros.rig.hip_lidar import HipMount
 from lip_ros.rig.imu import ImuNoise, ImuRigConfig, ImuStream, ImuTruth, make_imu_truth, simulate_imus
@@ -55,7 +56,7 @@ class SiteCaptureConfig:
     mount_tilt_up_deg: float = HipMount.tilt_up_deg
     # the rate of the suit's IMUs and of its odometry (``odometry.rate_hz`` is overridden): the contract's 100 Hz,
     # or a variant (the method is told 100 Hz unless its ``suit_rate_hz`` is set)
-    suit_rate_hz: float = 100.0
+    suit_rate_hz: float = SUIT_RATE_HZ
 
     def __post_init__(self) -> None:
         if (self.columns not in (512, 1024, 2048) or self.rate_hz not in (10.0, 20.0) or self.seconds <= 0

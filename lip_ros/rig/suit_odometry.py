@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lip_ros.core.rotations import matrix_to_quat, rot_z
+from lip_ros.hsc4d.sensors import SUIT_RATE_HZ
 from lip_ros.rig.motion.posture import sole_points
 from lip_ros.rig.motion.primitives import smoothstep
 from lip_ros.rig.trajectory import Trajectory
@@ -82,7 +83,7 @@ class SuitOdometryConfig:
     stride_scale: float = 0.04  # relative, uniform in +-this
     heading_rate_deg_per_min: float = 3.0  # constant drift, uniform in +-this
     heading_walk_deg_per_sqrt_min: float = 1.0  # plus a random walk
-    rate_hz: float = 100.0
+    rate_hz: float = SUIT_RATE_HZ
 
 
 @dataclass(eq=False)
