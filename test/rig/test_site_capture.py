@@ -205,8 +205,8 @@ def test_a_mount_tilt_variant_tilts_the_true_mounting_only():
 
 
 def test_a_suit_rate_variant_samples_the_imus_and_the_odometry_at_that_rate():
-    """``suit_rate_hz``: every segment and the suit's odometry at the variant's rate, the suit's clock and the
-    motion as in the contract's 100 Hz capture."""
+    """``suit_rate_hz``: every segment and the suit's odometry at the variant's rate, the suit's clock offset as in
+    the contract's 100 Hz capture; a rate off the rig's range is refused."""
     nominal = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
     variant = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, suit_rate_hz=240.0))
     for capture, rate in ((nominal, 100.0), (variant, 240.0)):
