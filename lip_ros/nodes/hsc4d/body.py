@@ -313,7 +313,8 @@ class BodyNode(GraphNode):
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
         now = time.monotonic()
         self._waiting.append((odometry.stamp_ns, odometry.frame_id, T, now, now + self.params["suit_wait_s"]))
-        self.take_polled()
+        if len(self._waiting) > self.params["max_waiting_poses"]:
+            self.take_polled()  # the oldest pose goes now, with every suit sample received (_drain takes them else)
         while len(self._waiting) > self.params["max_waiting_poses"]:
             self._pose(*self._waiting.popleft()[:4])
         self._drain()
