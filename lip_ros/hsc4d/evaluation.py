@@ -17,8 +17,8 @@ sent before then) and collects, per sweep the pipeline output, the pelvis of
   speed rule) before the pose graph, through the mounting as it then stood,
 * the **live** fused trajectory, and the **live optimised** one: after the
   scene-aware optimisation (:mod:`~lip_ros.hsc4d.scene_optimisation`) window by
-  window, each on the live odometry's local map as it stood when the window's
-  last sweep came out,
+  window, each on the live site map (``/hsc4d/map``) as it stood when the
+  window's last sweep came out,
 * the offline refinement (:mod:`~lip_ros.hsc4d.refinement`): the **refined
   graph** (the whole capture's graph solved at once) and the **refined**
   trajectory (that graph optimised on the whole site's map), also with each
@@ -36,8 +36,8 @@ method's pelvis, scaled to the first fused pelvis height as the body node does.
 the checkpoint error (the foot joint at the middle of each true stance), the
 foot contact error (a standing foot's height above the true surface under it
 against the truth's), foot sliding per frame and the root-relative MPJPE;
-:func:`map_metrics` each map's distance to the true scene surface (the live
-local map, the whole site's from the live trajectory and from the refined one).
+:func:`map_metrics` each map's distance to the true scene surface (the whole
+site's from the live odometry, S_live, and from the refined trajectory, S_opt).
 """
 
 from __future__ import annotations
@@ -71,9 +71,9 @@ class CaptureLost(RuntimeError):
 METHODS = ("baseline1_suit", "baseline2_lidar", "lidar_with_suit", "live", "live_optimised", "refined_graph", "refined")
 #: the refinement with one loss term left out, per term
 ABLATIONS = tuple(f"refined_without_{term}" for term in TERMS)
-#: the maps measured, each under the alignment of the trajectory that placed it: the live odometry's local map at
-#: the end, the whole site's from the live trajectory (S_live), and from the refined one (S_opt)
-MAPS = {"live": "live", "live_site": "live", "refined": "refined"}
+#: the maps measured, each under the alignment of the trajectory that placed it: the whole site's from the live
+#: odometry as the live graph ends it (S_live, ``/hsc4d/map``), and from the refined trajectory (S_opt)
+MAPS = {"live": "live", "refined": "refined"}
 
 
 @dataclass(frozen=True)
@@ -148,7 +148,7 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
     pipeline = refiner.pipeline
     steps, sweep_ms = 0, []
     kiss, lidar_only = KissIcpAlone(), {}  # Baseline2's sensor pose per sweep stamp
-    maps: list[tuple[int, np.ndarray]] = []  # (the newest step's index, the live map then), once per window
+    maps: list[tuple[int, np.ndarray]] = []  # (the newest step's index, the live site map then), once per window
     n = capture.num_frames
     for k, stamp_ns, points, point_ns in capture_sweeps(capture, refiner):
         finite = np.isfinite(points).all(axis=1)
@@ -201,7 +201,7 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                          true_offset, np.array([bool(r) and r != NOT_REGISTERED for r in live.rejected]),
                          np.array(sweep_ms),
                          refined.window_s, refined.sole_m, dict(pipeline.counts),
-                         {"live": maps[-1][1], "live_site": refined.live_map, "refined": refined.map},
+                         {"live": maps[-1][1], "refined": refined.map},
                          refined.seconds, pipeline.lever_m, np.asarray(pipeline.config.mount.lever_m),
                          np.asarray(capture.mount.lever_m))
 

@@ -7,9 +7,9 @@ trajectory), the suit's own odometry and the hip LiDAR's sweeps into a
 :class:`~lip_ros.hsc4d.trajectory.TrajectoryPipeline`. Of each live output it
 keeps what the refinement needs (:class:`LiveRecord`): the body posed on the
 fused pelvis, the suit's own pelvis and body (which foot stands, the suit's
-steps), and the sweep's points in a :class:`~lip_ros.hsc4d.site_map.SiteMap`
-(the whole site, placed by the live trajectory: S_live). :meth:`CaptureRefiner.refine`
-then
+steps), and puts the sweep's points in the pipeline's site map
+(:meth:`TrajectoryPipeline.add_to_map`: the whole site, placed by the live
+odometry: S_live). :meth:`CaptureRefiner.refine` then
 
 1. solves the whole capture's graph at once (:meth:`TrajectoryPipeline.refine`);
 2. optimises it window by window with the scene
@@ -32,7 +32,6 @@ import numpy as np
 from lip_ros.core.imu_sync import ImuSampleLike
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, optimise_sequence
-from lip_ros.hsc4d.site_map import SiteMap, SiteMapConfig
 from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 
@@ -44,11 +43,10 @@ FEET = ("left_foot", "right_foot")
 
 @dataclass(frozen=True)
 class RefinementConfig:
-    """The live trajectory's, the optimisation's and the site map's settings."""
+    """The live trajectory's (the site map's among them) and the optimisation's settings."""
 
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     scene: SceneOptimisationConfig = field(default_factory=SceneOptimisationConfig)
-    site_map: SiteMapConfig = field(default_factory=SiteMapConfig)
 
 
 @dataclass(frozen=True)
@@ -73,15 +71,14 @@ class LiveRecord:
 @dataclass(frozen=True)
 class Refinement:
     """The refined capture at the live sweeps' times (N,): the whole graph's pelvis T_map_P (N, 4, 4), that after
-    the scene-aware optimisation, the body on it, the whole-site map from the live trajectory (S_live) and from
-    the refined one (S_opt) (M, 3) in ``map``, the sole height used (m), the time per optimisation window and
+    the scene-aware optimisation, the body on it, the whole-site map rebuilt from the refined trajectory (S_opt)
+    (M, 3) in ``map``, the sole height used (m), the time per optimisation window and
     for the whole refinement (s)."""
 
     stamps_ns: np.ndarray
     graph: np.ndarray
     pelvis: np.ndarray
     body: BodyPose
-    live_map: np.ndarray
     map: np.ndarray
     sole_m: float
     window_s: np.ndarray
@@ -99,10 +96,10 @@ class CaptureRefiner:
         c = self.config = config or RefinementConfig()
         self.pipeline = TrajectoryPipeline(c.trajectory)
         self.body = SuitBody(load_skeleton(), SuitBodyConfig(capacity=c.trajectory.suit_capacity))
-        self.site = SiteMap(c.site_map)
         self.counts: Counter[str] = Counter()  #: frames not kept for the refinement, by reason
         self._feet = [self.body.skeleton.index(f) for f in FEET]
         self._steps: list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray, str]] = []  # each step but its points
+        self._mapped: list[int] = []  # each step's index in the pipeline's site map
         self._bodies: list[BodyPose] = []
         self._suit: list[tuple[np.ndarray, np.ndarray]] = []  # the suit's pelvis pose and joints
         self._scaled = False
@@ -142,7 +139,7 @@ class CaptureRefiner:
         if suit is None:
             self.counts[f"not refined: {why or 'no suit odometry near the sweep'}"] += 1
             return
-        self.site.add(step.points, step.lidar, len(self._steps))
+        self._mapped.append(self.pipeline.add_to_map(step))
         self._steps.append((step.stamp_ns, step.sweep_ns, step.pelvis, step.lidar, step.lidar_pelvis, step.rejected))
         self._bodies.append(body)
         self._suit.append((T_suit, suit.joints))
@@ -181,7 +178,7 @@ class CaptureRefiner:
                                    sole_m)
         window_s = np.full(len(result.windows), (time.perf_counter() - t0) / max(len(result.windows), 1))
         return Refinement(live.stamps_ns, graph, result.pelvis, moved_body(live.body, live.pelvis, result.pelvis),
-                          self.site.points(), self._shifted(live.pelvis, result.pelvis), result.sole_m, window_s,
+                          self._shifted(live.pelvis, result.pelvis), result.sole_m, window_s,
                           time.perf_counter() - start)
 
     def _shifted(self, live: np.ndarray, to: np.ndarray) -> np.ndarray:
@@ -189,6 +186,6 @@ class CaptureRefiner:
         its attitude kept as registered: ICP places a sweep to a fraction of a degree against the map, and the
         optimisation's turn of the body about the pelvis places the feet (the graph's or that turn moved the rig
         sites' walls by centimetres, measured)."""
-        corrections = np.tile(np.eye(4), (len(live), 1, 1))
-        corrections[:, :3, 3] = to[:, :3, 3] - live[:, :3, 3]
-        return self.site.moved(corrections)
+        corrections = np.tile(np.eye(4), (self.pipeline.mapped, 1, 1))  # steps not kept stay where they are
+        corrections[self._mapped, :3, 3] = to[:, :3, 3] - live[:, :3, 3]
+        return self.pipeline.site.moved(corrections)

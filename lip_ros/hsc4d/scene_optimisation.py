@@ -140,6 +140,11 @@ def fit_foot_planes(feet: np.ndarray, stance: np.ndarray, points: np.ndarray, rn
     ``radius_m`` of the stance's median foot position, from ``above_m`` over it to ``below_m`` under it."""
     c = config
     out = np.full(stance.shape + (4,), np.nan)
+    if not stance.any():
+        return out
+    standing = feet[stance]  # (K, 3): the map's points near none of them are not looked at again per stance
+    lo, hi = standing[:, :2].min(axis=0) - c.radius_m, standing[:, :2].max(axis=0) + c.radius_m
+    points = points[((points[:, :2] >= lo) & (points[:, :2] <= hi)).all(axis=1)]
     for foot in range(2):
         runs = np.flatnonzero(np.diff(np.concatenate([[0], stance[:, foot].astype(np.int8), [0]])))
         for start, stop in zip(runs[::2], runs[1::2], strict=True):

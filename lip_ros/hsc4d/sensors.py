@@ -27,7 +27,7 @@ def suit_imu_topic(segment: str) -> str:
 
 #: Out: the fused pelvis trajectory (nav_msgs/Odometry in :data:`MAP_FRAME`).
 ODOMETRY_TOPIC = "/hsc4d/odometry"
-#: Out (latched): the scene map around the wearer (PointCloud2 in :data:`MAP_FRAME`).
+#: Out (latched): the map of the whole site seen so far (PointCloud2 in :data:`MAP_FRAME`).
 MAP_TOPIC = "/hsc4d/map"
 #: Out (latched), between the graph's nodes: the suit's clock offset once the jump gave it (std_msgs/Int64, ns;
 #: suit stamp = LiDAR stamp + offset).

@@ -1,8 +1,8 @@
-"""The map of the whole site, for the offline refinement (ROS-free).
+"""The map of the whole site, live (``/hsc4d/map``) and for the offline refinement (ROS-free).
 
-The live odometry keeps kiss-icp's local map round the wearer (bounded by its
-range). :class:`SiteMap` keeps every part of the site a capture saw: each
-registered sweep's deskewed points placed by its pose in ``map``, one point per
+The live odometry registers against kiss-icp's local map round the wearer
+(bounded by its range). :class:`SiteMap` keeps every part of the site a capture
+saw: each posed sweep's deskewed points placed by its pose in ``map``, one point per
 voxel (the first to land in it), each remembering the sweep that placed it.
 Rebuilding the map from another trajectory (the paper's S_opt, from the
 refined one) is then moving each point by its own sweep's correction

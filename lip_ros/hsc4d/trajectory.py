@@ -31,7 +31,10 @@ pose graph, in one object the nodes and the batch tools share (ROS-free).
    suit's, over the last ``scale_window_s``).
 
 Every output is the pelvis pose at the sweep's reference time (the middle of
-its points' times) on the LiDAR's clock, in ``map``. :meth:`~TrajectoryPipeline.refine`
+its points' times) on the LiDAR's clock, in ``map``. The caller puts each
+output's points in the map of the whole site (:meth:`~TrajectoryPipeline.add_to_map`,
+a :class:`~lip_ros.hsc4d.site_map.SiteMap` placed by the live odometry: S_live),
+after it used the output, off its latency. :meth:`~TrajectoryPipeline.refine`
 solves the whole capture's graph at once (the offline refinement's trajectory).
 """
 
@@ -51,6 +54,7 @@ from lip_ros.hsc4d.mount import HipMountPrior, LeverArmEstimator, MountYawEstima
 from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
 from lip_ros.hsc4d.pose_graph import LiveTrajectoryGraph, PoseGraphConfig, fuse_batch
 from lip_ros.hsc4d.sensors import SUIT_RATE_HZ
+from lip_ros.hsc4d.site_map import SiteMap, SiteMapConfig
 from lip_ros.hsc4d.suit_track import SuitTrack
 from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
 
@@ -70,6 +74,7 @@ class TrajectoryConfig:
     map_frame: MapFrameConfig = field(default_factory=MapFrameConfig)
     sweep_height: SweepHeightConfig = field(default_factory=SweepHeightConfig)
     jump: JumpSyncConfig = field(default_factory=JumpSyncConfig)
+    site_map: SiteMapConfig = field(default_factory=SiteMapConfig)
     hold_s: float = 15.0  # sweeps held while waiting for the jump (about 0.8 MB each at 1024 x 64)
     map_after_s: float = 1.0  # registered capture before the map frame is fixed (the wearer stands still)
     scale_window_s: float = 20.0  # the suit's stride scale is measured over this much believed walking
@@ -168,6 +173,8 @@ class TrajectoryPipeline:
         self.mount_yaw = MountYawEstimator()
         self.mount_yaw_deg = 0.0  #: how far walking turned it since, about the body's axis
         self.lever = LeverArmEstimator(c.mount.lever_m)
+        self.site = SiteMap(c.site_map)  #: the whole site, placed by the live odometry (S_live)
+        self.mapped = 0  #: steps put in the site map
         self.counts: Counter[str] = Counter()
         self._rng = np.random.default_rng(c.seed)
         self._held: deque[tuple[np.ndarray, np.ndarray, int]] = deque()
@@ -215,13 +222,16 @@ class TrajectoryPipeline:
         """Sweeps taken but not output yet: held for the jump, or registered before the map frame was fixed."""
         return len(self._held) + len(self._pending)
 
+    def add_to_map(self, step: TrajectoryStep) -> int:
+        """Put an output's deskewed points in the site map, placed by its odometry pose T_map_L; its index in the
+        map (the sweep index of the points it placed, :meth:`SiteMap.moved`)."""
+        self.site.add(step.points, step.lidar, self.mapped)
+        self.mapped += 1
+        return self.mapped - 1
+
     def map_points(self) -> np.ndarray | None:
-        """(M, 3) the odometry's local map (kiss-icp's voxel map within its range of the wearer) in ``map``; None
-        before the map frame is fixed."""
-        if self.map_frame is None:
-            return None
-        T = self.map_frame.T_map_O
-        return self.odometry.map_points() @ T[:3, :3].T + T[:3, 3]
+        """(M, 3) float32 the site map in ``map`` (the outputs put in it so far); None while it is empty."""
+        return self.site.points() if self.site.size else None
 
     def add_pelvis_imu(self, sample: ImuSampleLike) -> str | None:
         """One sample of the suit's pelvis IMU (suit clock); why it was rejected, None if kept."""

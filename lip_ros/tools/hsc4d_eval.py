@@ -15,8 +15,8 @@ refinement without each loss term (the ablation); the clock offset found; the
 lever arm's horizontal error (estimated, and nominal); the registrations not
 believed; the time per sweep, per optimisation window and of
 the whole offline refinement; each map's distance to the true scene surface
-(median, p90): the live odometry's local map, the whole site's from the live
-trajectory (S_live) and from the refined one (S_opt).
+(median, p90): the whole site's from the live odometry (S_live, the live
+graph's ``/hsc4d/map``) and from the refined trajectory (S_opt).
 Writes DIR/metrics.json and DIR/trajectories.png (per capture: top view and
 height over time, the five trajectories against the truth). A capture the
 live pipeline does not pose sweep by sweep (the jump not synced, ...) is
@@ -46,7 +46,7 @@ _LABELS = {"baseline1_suit": "Baseline1 (suit)", "baseline2_lidar": "Baseline2 (
            "live_optimised": "live optimised", "refined_graph": "refined graph only", "refined": "refined",
            **{name: "  without " + name.rsplit("_", 1)[1] for name in ev.ABLATIONS}}
 _STYLES = {"baseline1_suit": "c:", "baseline2_lidar": "g-.", "live": "r-", "live_optimised": "m-", "refined": "b--"}
-_MAP_LABELS = {"live": "live local map", "live_site": "site map, live (S_live)", "refined": "site map, refined (S_opt)"}
+_MAP_LABELS = {"live": "site map, live (S_live)", "refined": "site map, refined (S_opt)"}
 #: printed per method: (metric key, label, scale, unit)
 _COLUMNS = (("ate_m", "ATE", 100.0, "cm"), ("vertical_m", "vertical", 100.0, "cm"), ("final_m", "end", 100.0, "cm"),
             ("checkpoint_m", "checkpoint", 100.0, "cm"), ("contact_m", "contact", 100.0, "cm"),

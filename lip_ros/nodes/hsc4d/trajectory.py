@@ -10,8 +10,10 @@ pelvis pose on ``/hsc4d/odometry`` (nav_msgs/Odometry in ``map``: gravity
 aligned, z up, origin on the ground under the first pelvis position; stamped
 with the sweep's reference time on the LiDAR's clock; twist from the last
 pose, in the pelvis frame) and, where tf2_msgs is installed, ``map`` ->
-``pelvis`` on /tf. Every ``map_period_s`` the local map around the wearer
-(kiss-icp's voxel map) goes out on ``/hsc4d/map`` (reliable, transient local).
+``pelvis`` on /tf. Each posed sweep's points then go into the map of the
+whole site (:class:`lip_ros.hsc4d.site_map.SiteMap`, 0.1 m voxels, placed by
+the live odometry), which goes out every ``map_period_s`` on ``/hsc4d/map``
+(reliable, transient local).
 
 The sweeps held until the jump are registered with each new sweep for at most
 half a LiDAR period (not in one long callback, during which the suit's samples
@@ -109,7 +111,7 @@ class TrajectoryNode(GraphNode):
         "suit_odometry_topic": Param("input: the suit's own nav_msgs/Odometry"),
         "suit_rate_hz": Param("expected rate of the suit's topics", positive),
         "odometry_topic": Param("out: the fused pelvis trajectory (nav_msgs/Odometry in frame_id)"),
-        "map_topic": Param("out (latched): the map around the wearer (PointCloud2 in frame_id)"),
+        "map_topic": Param("out (latched): the map of the whole site seen so far (PointCloud2 in frame_id)"),
         "offset_topic": Param("out (latched): the suit's clock offset in ns (std_msgs/Int64)"),
         "frame_id": Param("the outputs' frame (gravity aligned, origin on the ground under the first pelvis)"),
         "child_frame_id": Param("the fused pelvis's frame (the odometry's child and the /tf child)"),
@@ -305,6 +307,7 @@ class TrajectoryNode(GraphNode):
         self._published += 1
         if received is not None:
             (self._catch_up_latency if received[1] else self._latency).add(time.monotonic() - received[0])
+        self.pipeline.add_to_map(step)  # after the pose is out: off its latency
 
     def _publish_map(self) -> None:
         last = self._last_step
@@ -313,7 +316,7 @@ class TrajectoryNode(GraphNode):
         points = self.pipeline.map_points()
         if points is None:
             return
-        self._map_pub.publish(xyz_to_cloud(self.backend, points.astype(np.float32), last.stamp_ns,
+        self._map_pub.publish(xyz_to_cloud(self.backend, points, last.stamp_ns,
                                            self.params["frame_id"]))
         self._map_stamp_ns = last.stamp_ns
 
@@ -330,6 +333,8 @@ class TrajectoryNode(GraphNode):
             "lever arm sigma (m)": " ".join(f"{v:.3f}" for v in pipe.lever.sigma_m),
             "stride scale of the suit": f"{pipe.stride_scale.value:.3f}",
             "odometry published": self._published,
+            "map points": self.pipeline.site.size,
+            "map points not kept (full)": self.pipeline.site.refused,
             "restarts": self._restarts,
             "pending": pipe.waiting + len(self._waiting),
             **{k: v for k, v in sorted(pipe.counts.items()) if k not in _DROPPED},
