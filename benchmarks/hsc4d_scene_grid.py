@@ -3,15 +3,19 @@
 Each capture (``--seeds``, ``--seconds``) is simulated and played through a
 :class:`~lip_ros.hsc4d.refinement.CaptureRefiner` once; the refinement is then
 repeated for every combination of the contact weight, the stance speed, the
-orientation weight and an offset on the sole height measured (``--contact``,
-``--stance``, ``--orientation``, ``--sole-offset``), and the refined
-trajectory and body are measured against the truth as ``hsc4d_eval`` does.
-Prints per capture and setting, then the means per setting. Use development
-seeds only (the held-out ones, 1000 and up, judge the choice).
+orientation weight, an offset on the sole height measured and the sliding
+weight (``--contact``, ``--stance``, ``--orientation``, ``--sole-offset``,
+``--sliding``), and the refined trajectory and body are measured against the
+truth as ``hsc4d_eval`` does. Per setting also where the sliding comes from:
+the motion of a truly standing foot from frame to frame where the suit finds
+it standing too (the sliding term holds it there) and where it does not (the
+stance's edges, where the foot rolls), each against the truth's own motion on
+the same frames. Prints per capture and setting, then the means per setting.
+Use development seeds only (the held-out ones, 1000 and up, judge the choice).
 
 Run:
   python benchmarks/hsc4d_scene_grid.py --seeds 0 3 11 [--seconds 90] [--contact 0 1 3] [--stance 0.5 0.7 1.0]
-      [--orientation 1 0.5] [--sole-offset 0 0.015]
+      [--orientation 1 0.5] [--sole-offset 0 0.015] [--sliding 3]
 """
 
 from __future__ import annotations
@@ -23,16 +27,27 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d import evaluation as ev
-from lip_ros.hsc4d.refinement import CaptureRefiner
-from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig
+from lip_ros.hsc4d.refinement import FEET, CaptureRefiner
+from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, stance_from_suit
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 _KEYS = ("ate_m", "vertical_m", "checkpoint_m", "contact_m", "sliding_m")
 
 
 def _figures(m: dict[str, float]) -> str:
-    return " ".join(f"{k.removesuffix('_m')} {100 * m[k]:.2f}" for k in _KEYS) + f" mpjpe {m['mpjpe_mm']:.1f}"
+    where = "; ".join(f"where the suit {'finds the stance' if name == 'suit_stands' else 'does not'}: "
+                      f"{100 * m[f'sliding_{name}_m']:.2f} (truth {100 * m[f'truth_{name}_m']:.2f}, "
+                      f"{100 * m[f'share_{name}']:.0f} % of the sliding)" for name in ("suit_stands", "suit_not"))
+    return (" ".join(f"{k.removesuffix('_m')} {100 * m[k]:.2f}" for k in _KEYS) + f" mpjpe {m['mpjpe_mm']:.1f}"
+            + f"; sliding {where}")
+
+
+def _setting(setting: tuple[float, ...]) -> str:
+    contact, stance, orientation, offset, sliding = setting
+    return (f"contact {contact:g} stance {stance:g} orientation {orientation:g} sole {offset:+.3f} "
+            f"sliding {sliding:g}")
 
 
 def main() -> None:
@@ -44,9 +59,12 @@ def main() -> None:
     p.add_argument("--stance", type=float, nargs="+", default=[0.5, 0.7, 1.0])
     p.add_argument("--orientation", type=float, nargs="+", default=[1.0, 0.5])
     p.add_argument("--sole-offset", type=float, nargs="+", default=[0.0, 0.015])
+    p.add_argument("--sliding", type=float, nargs="+", default=[SceneOptimisationConfig.sliding])
     args = p.parse_args()
-    settings = [s for s in itertools.product(args.contact, args.stance, args.orientation, args.sole_offset)
+    settings = [s for s in itertools.product(args.contact, args.stance, args.orientation, args.sole_offset,
+                                             args.sliding)
                 if s[0] or not s[3]]  # a sole offset matters only with contact
+    feet = [load_skeleton().index(f) for f in FEET]
     results: dict[tuple, list[dict[str, float]]] = {s: [] for s in settings}
     for seed in args.seeds:
         capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=args.seconds))
@@ -60,24 +78,34 @@ def main() -> None:
         truth = capture.truth(t_s)
         jump = next(end for name, _, end in capture.phases_ns() if name == "jump")
         sole = refiner.refine().sole_m
+        landing_s = (jump - capture.epoch_ns) * 1e-9
+        standing = truth.contacts.stance & (t_s >= landing_s)[:, None]
+        both = standing[1:] & standing[:-1]  # the frame pairs the sliding metric measures
+        true_steps = np.linalg.norm(np.diff(truth.joints[:, feet], axis=0), axis=-1)
         for setting in settings:
-            contact, stance, orientation, offset = setting
+            contact, stance, orientation, offset, sliding = setting
             config = replace(SceneOptimisationConfig(), contact=contact, stance_speed_mps=stance,
-                             orientation=orientation)
+                             orientation=orientation, sliding=sliding)
             r = refiner.refine(config, sole + offset)
             run = SimpleNamespace(  # what the metrics read of a TrajectoryRun
                 seed=seed, t_s=t_s, positions={"refined": r.pelvis[:, :3, 3]}, joints={"refined": r.body.joints},
                 truth=truth.pelvis, true_joints=truth.joints, true_stance=truth.contacts.stance,
                 ground=capture.terrain.surface_height(truth.pelvis[:, :2]),
-                landing_s=(jump - capture.epoch_ns) * 1e-9)
+                landing_s=landing_s)
             m = ev.trajectory_metrics(run)["refined"] | ev.body_metrics(run, capture.terrain)["refined"]
+            steps = np.linalg.norm(np.diff(r.body.joints[:, feet], axis=0), axis=-1)
+            suit = stance_from_suit(live.suit_joints[:, feet], t_s, stance)
+            held = both & suit[1:] & suit[:-1]
+            for name, pairs in (("suit_stands", held), ("suit_not", both & ~held)):
+                m[f"sliding_{name}_m"] = float(steps[pairs].mean())
+                m[f"truth_{name}_m"] = float(true_steps[pairs].mean())
+                m[f"share_{name}"] = float(steps[pairs].sum() / steps[both].sum())
             results[setting].append(m)
-            print(f"seed {seed} contact {contact:g} stance {stance:g} orientation {orientation:g} sole "
-                  f"{offset:+.3f}: {_figures(m)}", flush=True)
+            print(f"seed {seed} {_setting(setting)}: {_figures(m)}", flush=True)
     print("means (cm; sliding cm per frame; MPJPE mm):")
-    for (contact, stance, orientation, offset), ms in results.items():
+    for setting, ms in results.items():
         mean = {k: float(np.mean([m[k] for m in ms])) for k in ms[0]}
-        print(f"contact {contact:g} stance {stance:g} orientation {orientation:g} sole {offset:+.3f}: {_figures(mean)}")
+        print(f"{_setting(setting)}: {_figures(mean)}")
 
 
 if __name__ == "__main__":
