@@ -97,6 +97,11 @@ def test_outputs_follow_the_contract(replay):
     assert sizes[-1] > 10_000 and sizes == sorted(sizes), sizes
     site = cloud_to_xyz(maps[-1].msg)
     assert len(np.unique(np.floor(site / SiteMapConfig().voxel_m).astype(np.int64), axis=0)) > 0.999 * len(site)
+    last = {}
+    for m in read_messages(out, ["/diagnostics"]):
+        last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
+    counts = last["hsc4d_trajectory_node: frames"].values  # the map as the node last had it: no less, none refused
+    assert int(counts["map points"]) >= sizes[-1] and int(counts["map points not kept (full)"]) == 0
 
 
 def test_accuracy_and_clock_offset_as_offline(replay):
