@@ -22,11 +22,14 @@ import numpy as np
 
 from lip_ros.core.skeleton import Skeleton
 
-__all__ = ["BodyModel"]
+__all__ = ["BodyModel", "TORSO_PARTS", "LIMB_PARTS"]
 
 # The capsule table below is drawn for the contract skeleton (scale 1); it scales with ``skeleton.scale``.
 
 _SKIN, _CLOTH = 0, 1
+#: Capsules thickened by ``torso_girth`` and (both sides) by ``limb_girth``: a body shaped otherwise than uniformly.
+TORSO_PARTS = ("pelvis", "abdomen", "lower_chest", "chest")
+LIMB_PARTS = ("upper_arm", "forearm", "thigh", "shank")
 
 # name, (joint, offset), (joint, offset), radius, material. Offsets are in the
 # joint's bone frame. Parts named "left_*" are mirrored (x -> -x) to the right.
@@ -113,7 +116,8 @@ class _Capsules:
 
 
 class BodyModel:
-    """Capsule body of one performer around ``skeleton``, thickened by ``girth``.
+    """Capsule body of one performer around ``skeleton``, thickened by ``girth`` (all capsules), ``torso_girth``
+    (:data:`TORSO_PARTS`) and ``limb_girth`` (:data:`LIMB_PARTS`).
 
     ``reflectivity`` of each capsule (NIR, 0..1) is ``skin_reflectivity`` for
     head, neck and hands and ``clothing_reflectivity`` elsewhere.
@@ -125,19 +129,24 @@ class BodyModel:
         girth: float = 1.0,
         clothing_reflectivity: float = 0.4,
         skin_reflectivity: float = 0.55,
+        torso_girth: float = 1.0,
+        limb_girth: float = 1.0,
     ) -> None:
-        if girth <= 0.0:
-            raise ValueError("girth must be positive")
+        if min(girth, torso_girth, limb_girth) <= 0.0:
+            raise ValueError("girths must be positive")
         self.skeleton = skeleton
         self.girth = float(girth)
+        self.torso_girth, self.limb_girth = float(torso_girth), float(limb_girth)
         size = skeleton.scale
         table = _part_table()
         self.names: tuple[str, ...] = tuple(row[0] for row in table)
+        shape = np.array([torso_girth if n in TORSO_PARTS else limb_girth if n.split("_", 1)[-1] in LIMB_PARTS
+                          else 1.0 for n in self.names])
         self._ja = np.array([skeleton.index(row[1]) for row in table])
         self._oa = size * np.stack([row[2] for row in table])
         self._jb = np.array([skeleton.index(row[3]) for row in table])
         self._ob = size * np.stack([row[4] for row in table])
-        self.radius: np.ndarray = size * self.girth * np.array([row[5] for row in table])
+        self.radius: np.ndarray = size * self.girth * shape * np.array([row[5] for row in table])
         materials = np.array([row[6] for row in table])
         self.reflectivity: np.ndarray = np.where(materials == _SKIN, skin_reflectivity, clothing_reflectivity)
 

@@ -9,7 +9,7 @@ LiDAR frame ``os_lidar``) and ``root_pos`` its position there.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -28,10 +28,23 @@ __all__ = [
     "joint_angles_to_local_rotations",
     "NUM_JOINTS",
     "AXIS_SUFFIXES",
+    "PROPORTION_GROUPS",
 ]
 
 NUM_JOINTS = 24
 AXIS_SUFFIXES = ("_rz", "_ry", "_rx")
+#: Segment groups whose lengths ``Skeleton.with_proportions`` scales, each by the rest offsets of these joints
+#: (the bones ending in them; both sides alike).
+PROPORTION_GROUPS: dict[str, tuple[str, ...]] = {
+    "hips": ("left_hip", "right_hip"),
+    "thigh": ("left_knee", "right_knee"),
+    "shank": ("left_ankle", "right_ankle"),
+    "spine": ("spine1", "spine2", "spine3", "neck"),
+    "shoulders": ("left_collar", "right_collar", "left_shoulder", "right_shoulder"),
+    "upper_arm": ("left_elbow", "right_elbow"),
+    "forearm": ("left_wrist", "right_wrist"),
+}
+_LEG_CHAINS = (("left_hip", "left_knee", "left_ankle"), ("right_hip", "right_knee", "right_ankle"))
 
 
 @dataclass(frozen=True)
@@ -77,6 +90,23 @@ class Skeleton:
             self.calibration_poses,
             self.scale * scale,
         )
+
+    def with_proportions(self, factors: dict[str, float]) -> Skeleton:
+        """The same skeleton with the bones of each :data:`PROPORTION_GROUPS` group in ``factors`` lengthened by its
+        factor (a body shaped otherwise than a uniformly scaled contract skeleton); the pelvis height follows the
+        legs. ``scale`` is kept: it stays the overall size."""
+        unknown = set(factors) - set(PROPORTION_GROUPS)
+        if unknown:
+            raise KeyError(f"unknown proportion groups {sorted(unknown)}; known: {sorted(PROPORTION_GROUPS)}")
+        if any(f <= 0.0 for f in factors.values()):
+            raise ValueError(f"proportion factors must be positive: {factors}")
+        gain = np.ones(NUM_JOINTS)
+        for group, f in factors.items():
+            gain[[self.index(j) for j in PROPORTION_GROUPS[group]]] = f
+        offsets = self.offsets * gain[:, None]
+        drop = [sum(-offsets[self.index(j), 1] + self.offsets[self.index(j), 1] for j in chain)
+                for chain in _LEG_CHAINS]
+        return replace(self, offsets=offsets, pelvis_height=self.pelvis_height + float(np.mean(drop)))
 
 
 def _parse(doc: dict) -> Skeleton:

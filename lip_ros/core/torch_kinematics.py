@@ -21,7 +21,7 @@ def axis_angle_to_matrix(v: torch.Tensor) -> torch.Tensor:
     small = theta2 < 1e-12
     a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)
     b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / (theta2 + 1e-24))
-    return torch.eye(3, dtype=v.dtype) + a * K + b * (K @ K)
+    return torch.eye(3, dtype=v.dtype, device=v.device) + a * K + b * (K @ K)
 
 
 def six_d_to_matrix(d6: torch.Tensor) -> torch.Tensor:

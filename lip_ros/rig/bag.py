@@ -48,7 +48,9 @@ def _truth_sidecar(session: CaptureSession) -> dict[str, Any]:
                   "R_S_L": session.lidar_rotation.tolist()},  # L in the level world S (tilt)
         "performer": {"scenario": m.scenario,
                       "body_scale": m.skeleton.scale,
-                      "girth": session.girth, "pelvis_height_m": float(m.skeleton.pelvis_height)},
+                      "proportions": dict(session.draw.proportions),
+                      "girth": session.girth, "torso_girth": session.body.torso_girth,
+                      "limb_girth": session.body.limb_girth, "pelvis_height_m": float(m.skeleton.pelvis_height)},
         "phases": [{"name": n, "start_ns": a, "end_ns": b} for n, a, b in session.phases_ns()],
         "imu_calibration": session.imu_calibration(),
     }

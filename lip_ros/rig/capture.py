@@ -15,6 +15,8 @@ import numpy as np
 
 from lip_ros.core.body import BodyModel
 from lip_ros.core.rotations import rot_x, rot_y
+from lip_ros.core.skeleton import load_skeleton
+from lip_ros.rig.domain import DOMAINS, PerformerDraw
 from lip_ros.rig.imu import ImuNoise, ImuRigConfig, ImuStream, ImuTruth, make_imu_truth, simulate_imus
 from lip_ros.rig.lidar import Actor, Frame, OusterModel
 from lip_ros.rig.motion import PerformerMotion, make_motion
@@ -57,8 +59,11 @@ class CaptureConfig:
     body_scale: float | None = None  # the performer's size, times the contract skeleton's (None: random 0.9-1.1)
     facing_deg: float = 0.0  # the performer calibrates facing the LiDAR turned by this (counter-clockwise)
     imu_noise: bool = True
+    domain: str = "standard"  # what the performer's shape, sensors, motion style and occluder are drawn from
 
     def __post_init__(self) -> None:
+        if self.domain not in DOMAINS:
+            raise ValueError(f"domain must be one of {sorted(DOMAINS)}, not {self.domain!r}")
         if self.sensor not in SENSORS:
             raise ValueError(f"sensor must be one of {sorted(SENSORS)}, not {self.sensor!r}")
         if not 2.0 <= self.distance_m <= 100.0:
@@ -113,16 +118,22 @@ class CaptureSession:
     lidar: OusterModel = field(init=False)
     imu_truth: ImuTruth = field(init=False)
     girth: float = field(init=False)
+    draw: PerformerDraw = field(init=False)
 
     def __post_init__(self) -> None:
         cfg = self.config
         rng = np.random.default_rng([cfg.seed, 100])
         bearing = np.deg2rad(cfg.bearing_deg)
         centre = cfg.distance_m * np.array([np.cos(bearing), np.sin(bearing), 0.0])
+        domain = DOMAINS[cfg.domain]
+        self.draw = draw = domain.draw(cfg.seed)
         self.motion = make_motion(cfg.scenario, cfg.seconds, cfg.seed, centre, cfg.lidar_height_m, cfg.area_radius_m,
-                                  cfg.body_scale, facing_deg=cfg.facing_deg)
+                                  cfg.body_scale, skeleton=load_skeleton().with_proportions(draw.proportions),
+                                  facing_deg=cfg.facing_deg, activities=domain.activities, energy=domain.energy,
+                                  tempo=domain.tempo)
         self.girth = float(rng.uniform(0.9, 1.15))
-        self.body = BodyModel(self.motion.skeleton, girth=self.girth)
+        self.body = BodyModel(self.motion.skeleton, girth=self.girth, torso_girth=draw.torso_girth,
+                              limb_girth=draw.limb_girth)
         areas = [(centre, cfg.area_radius_m)]
         self.others = []
         if cfg.second_person:
@@ -141,13 +152,16 @@ class CaptureSession:
                                       ground_z)
         else:
             self.scene = Scene(ground_z=ground_z)
+        if draw.occluder is not None:
+            self.scene = self.scene.with_box(*draw.occluder.box(centre, ground_z))
         self.lidar = SENSORS[cfg.sensor](columns=cfg.columns, rate_hz=cfg.rate_hz, rotation=self.lidar_rotation,
                                           azimuth_window_deg=cfg.azimuth_window_deg,
                                           column0_azimuth_deg=cfg.column0_azimuth_deg,
                                           beam_azimuth_deg=tuple(cfg.beam_azimuth_deg))
         imu_config = ImuRigConfig.lip(self.motion.skeleton, max_mount_deg=cfg.max_mount_deg,
                                       heading_spread_deg=cfg.imu_heading_spread_deg,
-                                      latency_s=(cfg.imu_latency_ms[0] * 1e-3, cfg.imu_latency_ms[1] * 1e-3))
+                                      latency_s=(cfg.imu_latency_ms[0] * 1e-3, cfg.imu_latency_ms[1] * 1e-3),
+                                      along=draw.imu_along, surface_m=draw.imu_surface_m)
         self.imu_truth = make_imu_truth(self.motion.skeleton, imu_config, np.random.default_rng([cfg.seed, 102]))
 
     @property
@@ -202,7 +216,7 @@ class CaptureSession:
 
     def imu_streams(self) -> dict[str, ImuStream]:
         """The four DOT streams over the whole capture, stamps on the capture clock."""
-        noise = ImuNoise() if self.config.imu_noise else ImuNoise.none()
+        noise = self.draw.imu_noise() if self.config.imu_noise else ImuNoise.none()
         noise = replace(noise, latency_jitter=self.config.imu_latency_jitter_ms * 1e-3)
         streams = simulate_imus(self.motion, self.imu_truth, 0.0, self.motion.duration, noise,
                                 np.random.default_rng([self.config.seed, 103]))

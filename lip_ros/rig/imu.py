@@ -46,10 +46,15 @@ __all__ = [
     "ImuStream",
     "make_imu_truth",
     "simulate_imus",
+    "DOT_ALONG",
+    "DOT_SURFACE_M",
 ]
 
 _WINDOW_S = 10.0  # trajectory time sampled per batch (bounds memory on long captures)
 _JITTER_CLIP = 3.0  # stamp jitter is a normal clipped at this many standard deviations
+#: Where the rig straps a DOT by default: this fraction along its bone (forearm, shank) and this far off its axis.
+DOT_ALONG = 0.85
+DOT_SURFACE_M = 0.035
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,10 +104,12 @@ class ImuRigConfig:
 
     @classmethod
     def lip(cls, skeleton: Skeleton, max_mount_deg: float = 40.0, heading_spread_deg: float = 0.0,
-            latency_s: tuple[float, float] = (0.0, 0.0)) -> ImuRigConfig:
-        """The LIP rig: the contract's four DOTs (``lip_imus``), ~60 Hz +-0.5 %, near the wrists and ankles."""
+            latency_s: tuple[float, float] = (0.0, 0.0), along: float = DOT_ALONG, surface_m: float = DOT_SURFACE_M
+            ) -> ImuRigConfig:
+        """The LIP rig: the contract's four DOTs (``lip_imus``), ~60 Hz +-0.5 %, by default near the wrists and
+        ankles (``along`` the forearm and shank, ``surface_m`` off their axis)."""
         sensors = tuple((name, s["bone_joint"], IMU_TOPICS[name]) for name, s in skeleton.lip_imus.items())
-        return cls(sensors, 60.0, rate_tol=0.005, max_mount_deg=max_mount_deg, along=0.85, surface_m=0.035,
+        return cls(sensors, 60.0, rate_tol=0.005, max_mount_deg=max_mount_deg, along=along, surface_m=surface_m,
                    heading_spread_deg=heading_spread_deg, latency_s=latency_s)
 
     @classmethod

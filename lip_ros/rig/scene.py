@@ -11,7 +11,7 @@ scene once (``lip_ros.rig.lidar.OusterModel.static_image``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -169,6 +169,13 @@ class Scene:
                 idx = near[nearer]
                 best[idx], cos[idx], refl[idx] = t[nearer], c[nearer], group.reflectivity[i]
         return best.reshape(shape), np.clip(cos, 0.0, 1.0).reshape(shape), refl.reshape(shape)
+
+    def with_box(self, centre: np.ndarray, half: np.ndarray, yaw: float, reflectivity: float = 0.3) -> Scene:
+        """This scene with one more box: centre (3,), half sizes (3,), yaw (rad) about z."""
+        b = self.boxes
+        boxes = Boxes(np.vstack([b.centre, centre]), np.vstack([b.half, half]), np.append(b.yaw, yaw),
+                      np.append(b.reflectivity, reflectivity))
+        return replace(self, boxes=boxes)
 
     @classmethod
     def random(

@@ -88,3 +88,23 @@ def test_cli_trains_and_exports(data_dir, tmp_path, capsys):
     assert "final validation" in capsys.readouterr().out
     model = LipModel.load(tmp_path / "w" / "lip")
     assert model.config == CONFIG
+
+
+def test_training_starts_from_given_weights(prepared, tmp_path):
+    """``init``: with a zero learning rate the run ends where it started."""
+    train_set, val_set = prepared
+    torch.manual_seed(123)
+    start = LipNet(CONFIG)
+    opts = replace(OPTIONS, steps=3, lr=0.0, val_every=3)
+    metrics = train(CONFIG, train_set, val_set, opts, tmp_path, init=start.state_dict(), log=lambda _: None)
+    assert metrics == pytest.approx(evaluate(start, val_set, SkeletonTensors(load_skeleton())), rel=1e-5)
+
+
+def test_fit_minutes_cuts_the_schedule(prepared, tmp_path):
+    train_set, val_set = prepared
+    logged: list[str] = []
+    opts = replace(OPTIONS, steps=100_000, fit_minutes=1e-4, val_every=100_000)
+    train(CONFIG, train_set, val_set, opts, tmp_path, log=logged.append)
+    cut = [m for m in logged if m.startswith("schedule cut")]
+    assert len(cut) == 1 and "from 100000 to 50 steps" in cut[0]  # nothing left after the 50 timed steps
+    assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["step"] == 50

@@ -5,7 +5,7 @@ The set: full-scene captures as a real session would record them (clutter,
 :data:`lip_ros.lip.train.rigdata.EVAL_SEED_MIN` on (never used for training or
 validation, whose motions also come from another generator,
 ``random_motion``), the rig's scenarios cycled, distances spread evenly over
-4-20 m (in a shuffled order, so that distance and scenario are not tied) and
+the domain's range (4-20 m in STANDARD; in a shuffled order, so that distance and scenario are not tied) and
 bearings within +-45 degrees.
 
 The truth of a capture comes from its bag: ``/gt/joint_poses`` (global joint
@@ -34,26 +34,38 @@ from lip_ros.lip.train.rigdata import EVAL_SEED_MIN
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.rig.bag import LABELS_FILE, TRUTH_FILE, write_capture_bag
 from lip_ros.rig.capture import CaptureConfig, CaptureSession
+from lip_ros.rig.domain import DOMAINS
 from lip_ros.rig.motion import SCENARIOS
 
-__all__ = ["heldout_configs", "make_heldout_set", "find_captures", "CaptureTruth", "performer_mask", "load_capture"]
+__all__ = ["FIRST_SEEDS", "heldout_configs", "make_heldout_set", "find_captures", "CaptureTruth", "performer_mask",
+           "load_capture"]
 
-_DISTANCES_M = (4.0, 20.0)
 _MAX_BEARING_DEG = 45.0
+_SINGLE_DISTANCE_M = 8.0  # a set of one capture
+#: Each domain's held-out seeds start here (all >= EVAL_SEED_MIN, so no training seed).
+FIRST_SEEDS = {"standard": EVAL_SEED_MIN, "training": EVAL_SEED_MIN + 100_000, "shifted": EVAL_SEED_MIN + 200_000}
 
 
-def heldout_configs(count: int, seconds: float = 20.0, first_seed: int = EVAL_SEED_MIN,
-                    columns: int = 1024) -> list[CaptureConfig]:
-    """The ``count`` capture configurations of the held-out set (deterministic)."""
+def heldout_configs(count: int, seconds: float = 20.0, first_seed: int | None = None,
+                    columns: int = 1024, domain: str = "standard") -> list[CaptureConfig]:
+    """The ``count`` capture configurations of the held-out set of ``domain`` (deterministic); seeds from
+    ``first_seed`` (default: the domain's own, :data:`FIRST_SEEDS`)."""
+    first_seed = FIRST_SEEDS[domain] if first_seed is None else first_seed
     if first_seed < EVAL_SEED_MIN:
         raise ValueError(f"held-out seeds start at {EVAL_SEED_MIN}, not {first_seed}")
+    d = DOMAINS[domain]
     rng = np.random.default_rng([first_seed, count])
-    distances = rng.permutation(np.linspace(*_DISTANCES_M, count)) if count > 1 else np.array([8.0])
+    single = np.array([float(np.clip(_SINGLE_DISTANCE_M, *d.distance_m))])
+    distances = rng.permutation(np.linspace(*d.distance_m, count)) if count > 1 else single
+    bearings = rng.uniform(-_MAX_BEARING_DEG, _MAX_BEARING_DEG, count)
+    mount = np.random.default_rng([first_seed, count, 1])
     return [
         CaptureConfig(scenario=SCENARIOS[i % len(SCENARIOS)], seconds=seconds, seed=first_seed + i,
-                      distance_m=round(float(distances[i]), 1),
-                      bearing_deg=round(float(rng.uniform(-_MAX_BEARING_DEG, _MAX_BEARING_DEG)), 1),
-                      columns=columns)
+                      distance_m=round(float(distances[i]), 1), bearing_deg=round(float(bearings[i]), 1),
+                      columns=columns, domain=domain,
+                      lidar_height_m=round(float(mount.uniform(*d.lidar_height_m)), 2),
+                      lidar_pitch_deg=round(float(mount.uniform(*d.lidar_pitch_deg)), 1),
+                      imu_heading_spread_deg=d.imu_heading_spread_deg, imu_latency_ms=d.imu_latency_ms)
         for i in range(count)
     ]
 
@@ -141,7 +153,8 @@ def load_capture(bag: Path) -> CaptureTruth:
     with np.load(bag / LABELS_FILE) as npz:
         labels = {k: npz[k] for k in npz.files}
     performer = truth["performer"]
-    skeleton = load_skeleton().scaled(float(performer["body_scale"]))
+    skeleton = load_skeleton().with_proportions(performer.get("proportions", {})).scaled(
+        float(performer["body_scale"]))
     phases = {p["name"]: (int(p["start_ns"]), int(p["end_ns"])) for p in truth["phases"]}
     frames = {int(s): k for k, s in enumerate(labels["frame_stamp_ns"])}
     points: list[np.ndarray] = [np.zeros((0, 3), np.float32)] * len(frames)
@@ -165,7 +178,8 @@ def load_capture(bag: Path) -> CaptureTruth:
         distance_m=float(truth["config"]["distance_m"]),
         rate_hz=float(truth["lidar"]["rate_hz"]),
         skeleton=skeleton,
-        body=BodyModel(skeleton, girth=float(performer["girth"])),
+        body=BodyModel(skeleton, girth=float(performer["girth"]), torso_girth=float(performer.get("torso_girth", 1.0)),
+                       limb_girth=float(performer.get("limb_girth", 1.0))),
         motion_start_ns=max(phases[p][1] for p in POSES),
         frame_stamp_ns=labels["frame_stamp_ns"],
         truth_stamp_ns=labels["truth_stamp_ns"],

@@ -22,7 +22,8 @@ Errors (paper section 5 and Table 2 of LIP, TransPose and PIP for jitter):
   of the performer's size);
 * mesh error (mm): :class:`~lip_ros.core.body_surface.BodySurface` points of
   the performer's body, estimated vs true pose, root-relative;
-* angular error (deg): geodesic angle of the 24 global joint rotations;
+* angular error (deg): geodesic angle of the 24 global joint rotations, and of the 19 joints that have a child
+  (``angle19_deg``: hands, feet and head left out, their rotation moves no joint);
 * translation error (cm): pelvis position in L;
 * CD (cm): one-sided chamfer distance from the performer's true points to
   the estimated posed body surface (performer's body model, exact distance
@@ -61,7 +62,7 @@ __all__ = ["MODES", "TRANSLATION_METHODS", "POSE_ERRORS", "SURFACE_POINTS", "Cap
 
 MODES = ("end_to_end", "oracle")
 TRANSLATION_METHODS = ("corrector", "point_average", "icp")
-POSE_ERRORS = ("mpjpe_mm", "pa_mpjpe_mm", "mesh_mm", "angle_deg", "mpjpe_published_mm")
+POSE_ERRORS = ("mpjpe_mm", "pa_mpjpe_mm", "mesh_mm", "angle_deg", "angle19_deg", "mpjpe_published_mm")
 SURFACE_POINTS = 3000  # fixed surface points per body (mesh error, ICP): about 2.5 cm apart
 
 
@@ -122,6 +123,7 @@ class _Scorer:
         self.capture = capture
         self.surface = BodySurface(capture.body, SURFACE_POINTS)
         self.contract_surface = contract_surface
+        self.non_leaf = [j for j in range(NUM_JOINTS) if capture.skeleton.children(j)]
 
     def icp_root(self, result: FrameResult) -> np.ndarray:
         """The ICP baseline's pelvis position for a posed frame."""
@@ -155,6 +157,7 @@ class _Scorer:
             "pa_mpjpe_mm": 1000.0 * metrics.pa_mpjpe(pos, pos_t),
             "mesh_mm": 1000.0 * metrics.mean_distance(surf, surf_t),
             "angle_deg": np.rad2deg(metrics.angular_error(glob, glob_t)),
+            "angle19_deg": np.rad2deg(metrics.angular_error(glob[:, self.non_leaf], glob_t[:, self.non_leaf])),
             "mpjpe_published_mm": 1000.0 * metrics.mpjpe(np.stack([r.pose.joint_pos for r in results]), pos_t),
         }
         ev.per_joint_mm = 1000.0 * np.linalg.norm(metrics.root_relative(pos) - metrics.root_relative(pos_t), axis=-1)

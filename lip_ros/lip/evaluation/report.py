@@ -46,8 +46,15 @@ def _per_capture(ev: CaptureEvaluation) -> dict:
     s = summarize([ev])
     return {"capture": ev.capture, "scenario": ev.scenario, "distance_m": ev.distance_m,
             "scored_frames": s["scored_frames"], "posed_frames": s["posed_frames"], "outcomes": s["outcomes"],
-            **{k: s[k] for k in ("mpjpe_mm", "angle_deg", "jitter_m_s3")},
+            **{k: s[k] for k in ("mpjpe_mm", "pa_mpjpe_mm", "angle_deg", "angle19_deg", "jitter_m_s3")},
             "trans_cm": s["translation"]["corrector"]["trans_cm"], "cd_cm": s["translation"]["corrector"]["cd_cm"]}
+
+
+def _family(s: dict) -> dict:
+    """The errors of a summary that the transfer comparison reads (:mod:`lip_ros.lip.evaluation.transfer`)."""
+    return {"captures": s["captures"], "scored_frames": s["scored_frames"], "posed_frames": s["posed_frames"],
+            **{k: s[k] for k in ("mpjpe_mm", "pa_mpjpe_mm", "angle_deg", "angle19_deg")},
+            "trans_cm": s["translation"]["corrector"]["trans_cm"]}
 
 
 def _check(target: str, value: float | None, limit: float | None, passed: bool | None) -> dict:
@@ -92,7 +99,10 @@ def build_report(results: Results, weights: Mapping[str, str], meta: Mapping) ->
     """The JSON report: ``meta`` (command, machine, ...), weights, captures, summaries, per capture, targets."""
     first = next(iter(next(iter(results.values())).values()))
     summaries = {
-        model: {mode: {"summary": summarize(evs), "per_capture": [_per_capture(e) for e in evs]}
+        model: {mode: {"summary": summarize(evs), "per_capture": [_per_capture(e) for e in evs],
+                       "per_family": {"all": _family(summarize(evs)),
+                                      **{f: _family(summarize([e for e in evs if e.scenario == f]))
+                                         for f in sorted({e.scenario for e in evs})}}}
                 for mode, evs in modes.items()}
         for model, modes in results.items()
     }
@@ -224,6 +234,10 @@ def plot_report(report: dict, results: Results, out_dir: Path) -> list[Path]:
     rows = math.ceil(len(evals) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.4 * rows), squeeze=False)
     for ax, ev in zip(axes.ravel(), evals):
+        ax.set_title(f"{ev.scenario}, {ev.distance_m:g} m", fontsize=9)
+        if not ev.posed:
+            ax.text(0.5, 0.5, "no pose", ha="center", va="center", transform=ax.transAxes)
+            continue
         ax.plot(ev.true_root_xy[:, 0], ev.true_root_xy[:, 1], "k-", lw=1.5, label="truth")
         ax.plot(ev.root_xy[:, 0], ev.root_xy[:, 1], "r.-", ms=2, lw=0.6, label="LIP")
         xy = np.concatenate([ev.true_root_xy, ev.root_xy])
@@ -232,7 +246,6 @@ def plot_report(report: dict, results: Results, out_dir: Path) -> list[Path]:
         ax.set_xlim(centre[0] - half, centre[0] + half)
         ax.set_ylim(centre[1] - half, centre[1] + half)
         ax.set_aspect("equal")
-        ax.set_title(f"{ev.scenario}, {ev.distance_m:g} m", fontsize=9)
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[len(evals):]:
         ax.axis("off")

@@ -27,17 +27,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from lip_ros.core.skeleton import forward_kinematics, load_skeleton
 from lip_ros.core.torch_kinematics import six_d_to_matrix
 from lip_ros.lip.nets.config import LipConfig
 from lip_ros.lip.nets.models import LipNet, State
 from lip_ros.lip.nets.preprocess import FrameInput, Preprocessor
+from lip_ros.lip.sensors import IMU_NAMES
 from lip_ros.resources import params_dir
 
-__all__ = ["LipOutput", "LipModel", "SHIPPED_WEIGHTS", "stack_frames"]
+__all__ = ["LipOutput", "LipModel", "SHIPPED_WEIGHTS", "BONE_TOLERANCE_DEG", "stack_frames"]
 
 #: Stem of the shipped weights in the package's ``params/weights/``.
 SHIPPED_WEIGHTS = "lip_small"
+#: How far (deg) an instrumented bone may be from its IMU's calibrated orientation (docs/lip/transfer.md).
+BONE_TOLERANCE_DEG = 5.0
 
 
 @dataclass(frozen=True)
@@ -73,12 +77,35 @@ def stack_frames(frames: Sequence[FrameInput]) -> tuple[torch.Tensor, torch.Tens
     return tuple(torch.from_numpy(np.stack([getattr(f, k) for f in frames]))[None] for k in ("points", "frame", "imu"))
 
 
-def _to_lidar(out: dict[str, torch.Tensor], frames: Sequence[FrameInput], scale: _ScaleTracker) -> LipOutput:
-    """Map the (1, T, ...) outputs in V back to L; joints by forward kinematics on the scaled skeleton."""
+def _measured_bones(rot: np.ndarray, imu_rot: np.ndarray, tolerance_deg: float) -> np.ndarray:
+    """``rot`` (T, 24, 3, 3) with each instrumented bone's global rotation brought within ``tolerance_deg`` of
+    its calibrated measurement ``imu_rot`` (T, 4, 3, 3) (turned towards it by the excess, about the axis
+    between them; frames where the measurement is not finite keep the network's); the bones below it follow."""
+    skeleton = load_skeleton()
+    glob, _ = forward_kinematics(skeleton, rot)
+    rot = rot.copy()
+    limit = np.radians(tolerance_deg)
+    for i, name in enumerate(IMU_NAMES):
+        j = skeleton.index(skeleton.lip_imus[name]["bone_joint"])
+        ok = np.isfinite(imu_rot[:, i]).all(axis=(-2, -1))
+        measured = imu_rot[ok, i]
+        away = matrix_to_axis_angle(np.swapaxes(measured, -1, -2) @ glob[ok, j])  # network's bone in the measured
+        angle = np.linalg.norm(away, axis=-1, keepdims=True)
+        target = measured @ axis_angle_to_matrix(away * np.minimum(1.0, limit / np.maximum(angle, 1e-12)))
+        rot[ok, j] = np.swapaxes(glob[ok, skeleton.parents[j]], -1, -2) @ target
+    return rot
+
+
+def _to_lidar(out: dict[str, torch.Tensor], frames: Sequence[FrameInput], scale: _ScaleTracker,
+              imu_rot: np.ndarray, bone_tolerance_deg: float) -> LipOutput:
+    """Map the (1, T, ...) outputs in V back to L; the instrumented bones within ``bone_tolerance_deg`` of
+    ``imu_rot`` (T, 4, 3, 3) (inf: the network's); joints by forward kinematics on the scaled skeleton."""
     R = np.stack([f.R_L_V for f in frames])  # (T, 3, 3)
     mean = np.stack([f.mean for f in frames])
     rot = six_d_to_matrix(out["rot6d"][0].double()).numpy()
     rot[:, 0] = R @ rot[:, 0]
+    if np.isfinite(bone_tolerance_deg):
+        rot = _measured_bones(rot, imu_rot, bone_tolerance_deg)
     _, unit = forward_kinematics(load_skeleton(), rot)
     body_scale = scale.update(unit, np.einsum("tab,tjb->tja", R, out["joints"][0].double().numpy()))
     offset = np.einsum("tab,tb->ta", R, out["offset"][0].double().numpy())
@@ -92,29 +119,36 @@ def _to_lidar(out: dict[str, torch.Tensor], frames: Sequence[FrameInput], scale:
 
 
 class LipModel:
-    """A LIP network with its preprocessing and streaming state."""
+    """A LIP network with its preprocessing and streaming state.
 
-    def __init__(self, net: LipNet) -> None:
+    The four instrumented bones (forearms, shanks) are kept within ``bone_tolerance_deg`` of the orientation
+    their calibrated IMU measures: where a sensor gives a quantity directly, the network's prior cannot take
+    the output far from it (0: the measurement itself; inf: the network's estimate; docs/lip/transfer.md).
+    """
+
+    def __init__(self, net: LipNet, bone_tolerance_deg: float = BONE_TOLERANCE_DEG) -> None:
         self.net = net.eval()
+        self.bone_tolerance_deg = float(bone_tolerance_deg)
         self.config: LipConfig = net.config
         self._pre = Preprocessor(self.config.num_points)
         self._state: State | None = None
         self._scale = _ScaleTracker()
 
     @classmethod
-    def load(cls, path: str | Path | None = None) -> LipModel:
+    def load(cls, path: str | Path | None = None, bone_tolerance_deg: float = BONE_TOLERANCE_DEG) -> LipModel:
         """Load ``<path>.pt`` and ``<path>.json`` (default: the shipped weights)."""
         path = Path(path) if path is not None else params_dir() / "weights" / SHIPPED_WEIGHTS
         net = LipNet(LipConfig.load(path.with_suffix(".json")))
         net.load_state_dict(torch.load(path.with_suffix(".pt"), map_location="cpu", weights_only=True))
-        return cls(net)
+        return cls(net, bone_tolerance_deg)
 
     def save(self, path: str | Path, float16: bool = False) -> None:
-        """Write ``<path>.pt`` (state_dict, floats as float32, or float16: half the file) and ``<path>.json``."""
+        """Write ``<path>.pt`` (state_dict on the CPU, floats as float32, or float16: half the file) and
+        ``<path>.json``."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         dtype = torch.float16 if float16 else torch.float32
-        state = {k: v.to(dtype) if v.is_floating_point() else v for k, v in self.net.state_dict().items()}
+        state = {k: v.to("cpu", dtype) if v.is_floating_point() else v.cpu() for k, v in self.net.state_dict().items()}
         torch.save(state, path.with_suffix(".pt"))
         self.config.save(path.with_suffix(".json"))
 
@@ -152,4 +186,5 @@ class LipModel:
         """Frames through ``pre`` and the network from ``state``; the outputs in L and the state after them."""
         frames = [pre(p, r, a) for p, r, a in zip(clouds, imu_rot, imu_acc, strict=True)]
         out, state = self.net(*stack_frames(frames), state)
-        return _to_lidar(out, frames, scale), state
+        measured = np.asarray(imu_rot, dtype=np.float64).reshape(-1, len(IMU_NAMES), 3, 3)
+        return _to_lidar(out, frames, scale, measured, self.bone_tolerance_deg), state

@@ -16,7 +16,10 @@ performer's points, docs/conventions.md):
   mapped by a calibration that is the truth (R_L_I = Rz(psi), R_B_S) with a
   random error of 0.5-2 degrees per rotation, ``R_L_B = R_L_I R_I_S R_B_S^T``,
   ``a_L = R_L_I R_I_S f_S - g e_z`` (the paper's equation 13), interpolated
-  to the pose time (slerp, linear) from the two neighbouring samples;
+  to the pose time (slerp, linear) from the two neighbouring samples, off by the spec's
+  ``imu_time_error_ms`` (the pipeline's residual sync error);
+* the performer's body, IMU placement and noise, motion style and any occluder or point dropout drawn from
+  the spec's domain (:mod:`lip_ros.rig.domain`: TRAINING for training and validation);
 * truth: ``root_pos`` (T, 3), ``local_rot`` (T, 24, 3, 3) ([0] = pelvis in
   L), ``joint_pos`` (T, 24, 3), the performer's scaled ``bone_offsets`` (24, 3);
 * ``pose_time`` (T,) seconds since the capture start.
@@ -30,6 +33,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 import sys
 import zlib
 from concurrent.futures import ProcessPoolExecutor
@@ -41,8 +45,10 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from lip_ros.core.body import BodyModel
 from lip_ros.core.rotations import axis_angle_to_matrix, rot_x, rot_y, rot_z
+from lip_ros.core.skeleton import load_skeleton
 from lip_ros.lip.sensors import IMU_NAMES
-from lip_ros.rig.imu import GRAVITY, ImuNoise, ImuRigConfig, ImuStream, make_imu_truth, simulate_imus
+from lip_ros.rig.domain import DOMAINS, TRAINING
+from lip_ros.rig.imu import GRAVITY, ImuRigConfig, ImuStream, make_imu_truth, simulate_imus
 from lip_ros.rig.lidar import Actor, OusterModel
 from lip_ros.rig.motion import calibration_duration, random_motion
 
@@ -67,7 +73,7 @@ VAL_SEEDS = range(500_000, 1_000_000)
 EVAL_SEED_MIN = 1_000_000
 #: Where ``lip_train`` caches simulated sequences unless told otherwise.
 DEFAULT_DATA_DIR = Path.home() / ".cache" / "lip_ros" / "rigdata"
-_CACHE_VERSION = 2
+_CACHE_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -85,6 +91,9 @@ class SequenceSpec:
     body_scale: float | None = None  # the performer's size times the contract skeleton's (None: drawn 0.9-1.1)
     lidar_pitch_deg: float = 0.0  # the LiDAR tilted (as CaptureConfig); the points are levelled, as the pipeline does
     lidar_roll_deg: float = 0.0
+    domain: str = "standard"  # what the body, sensors, motion style and occluders are drawn from (rig.domain)
+    imu_time_error_ms: float = 0.0  # the IMUs read this late (the pipeline's sync error; negative: early)
+    held_out: tuple[str, ...] = ()  # motion families left out of the domain's
 
     def key(self) -> str:
         """Cache file stem: readable seed and distance plus a hash of the whole spec."""
@@ -122,12 +131,14 @@ DISTANCE_M = (4.0, 25.0)
 LIDAR_HEIGHT_M = (0.5, 3.0)
 BODY_SCALE = (0.8, 1.2)  # about 1.38-2.06 m
 MAX_TILT_DEG = 10.0  # each of pitch and roll
+SYNC_ERROR_MS = 15.0  # the IMU readings' time error, +-
 
 
-def spec_for_seed(seed: int, seconds: float = 30.0) -> SequenceSpec:
+def spec_for_seed(seed: int, seconds: float = 30.0, held_out: tuple[str, ...] = ()) -> SequenceSpec:
     """A training/validation spec: distance 4-25 m, any bearing, the LiDAR 0.5-3 m high and tilted up to 10 deg in
-    pitch and roll, a performer 0.8-1.2x the contract skeleton, and one in four starting with the calibration poses
-    (if ``seconds`` leaves 10 s after them)."""
+    pitch and roll, a performer 0.8-1.2x the contract skeleton drawn from the TRAINING domain (shape, sensors,
+    motion style, occluders; without the ``held_out`` motion families), the IMUs up to 15 ms out of sync, and
+    one in four starting with the calibration poses (if ``seconds`` leaves 10 s after them)."""
     rng = np.random.default_rng([seed, 7_000])
     return SequenceSpec(
         seed=int(seed),
@@ -139,6 +150,9 @@ def spec_for_seed(seed: int, seconds: float = 30.0) -> SequenceSpec:
         body_scale=round(float(rng.uniform(*BODY_SCALE)), 3),
         lidar_pitch_deg=round(float(rng.uniform(-MAX_TILT_DEG, MAX_TILT_DEG)), 1),
         lidar_roll_deg=round(float(rng.uniform(-MAX_TILT_DEG, MAX_TILT_DEG)), 1),
+        domain=TRAINING.name,
+        imu_time_error_ms=round(float(rng.uniform(-SYNC_ERROR_MS, SYNC_ERROR_MS)), 1),
+        held_out=tuple(held_out),
     )
 
 
@@ -174,31 +188,42 @@ def make_sequence(spec: SequenceSpec) -> RigSequence:
     """Simulate one sequence (deterministic in ``spec``)."""
     bearing = np.deg2rad(spec.bearing_deg)
     centre = spec.distance_m * np.array([np.cos(bearing), np.sin(bearing), 0.0])
+    domain = DOMAINS[spec.domain]
+    draw = domain.draw(spec.seed)
     motion = random_motion(spec.seed, spec.seconds, centre, spec.lidar_height_m, spec.area_radius_m, spec.calibration,
-                           spec.body_scale)
+                           spec.body_scale, load_skeleton().with_proportions(draw.proportions),
+                           tuple(a for a in domain.activities if a not in spec.held_out), domain.energy, domain.tempo)
     rng = np.random.default_rng([spec.seed, 7_001])
-    body = BodyModel(motion.skeleton, girth=float(rng.uniform(0.9, 1.15)))
+    body = BodyModel(motion.skeleton, girth=float(rng.uniform(0.9, 1.15)), torso_girth=draw.torso_girth,
+                     limb_girth=draw.limb_girth)
     R_S_L = rot_y(np.radians(spec.lidar_pitch_deg)) @ rot_x(np.radians(spec.lidar_roll_deg))  # L in the level world
     lidar = OusterModel.os1_128(rotation=R_S_L)
     actors = [Actor(body, motion)]
     num_frames = int(np.floor(motion.duration * lidar.rate_hz + 1e-9))
     clouds, pose_time = [], np.empty(num_frames)
     for k in range(num_frames):
-        frame = lidar.scan(k * lidar.period_ns, None, actors, np.random.default_rng([spec.seed, 7_002, k]))
-        mine = frame.labels == 0
-        pts = frame.points[mine]
-        clouds.append((np.stack([pts["x"], pts["y"], pts["z"]], axis=-1) @ R_S_L.T).astype(np.float32))
-        t_ns = k * lidar.period_ns + pts["t"].astype(np.float64).mean() if mine.any() else frame.actor_stamps_ns[0]
+        frame_rng = np.random.default_rng([spec.seed, 7_002, k])
+        frame = lidar.scan(k * lidar.period_ns, None, actors, frame_rng)
+        pts = frame.points[frame.labels == 0]
+        xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=-1) @ R_S_L.T
+        lost = frame_rng.random(len(pts)) < draw.point_dropout
+        if draw.occluder is not None:
+            lost |= draw.occluder.hides(xyz, centre, -spec.lidar_height_m)
+        pts, xyz = pts[~lost], xyz[~lost]
+        clouds.append(xyz.astype(np.float32))
+        t_ns = k * lidar.period_ns + pts["t"].astype(np.float64).mean() if len(pts) else frame.actor_stamps_ns[0]
         pose_time[k] = float(t_ns) * 1e-9
     pose = motion.sample(pose_time)
     _, joint_pos = pose.global_pose(motion.skeleton)
 
-    imu_config = ImuRigConfig.lip(motion.skeleton)
+    imu_config = ImuRigConfig.lip(motion.skeleton, along=draw.imu_along, surface_m=draw.imu_surface_m)
     truth = make_imu_truth(motion.skeleton, imu_config, np.random.default_rng([spec.seed, 7_003]))
-    streams = simulate_imus(motion, truth, 0.0, motion.duration, ImuNoise(), np.random.default_rng([spec.seed, 7_004]))
+    streams = simulate_imus(motion, truth, 0.0, motion.duration, draw.imu_noise(),
+                            np.random.default_rng([spec.seed, 7_004]))
+    imu_time = pose_time - 1e-3 * spec.imu_time_error_ms
     R_L_I = rot_z(truth.psi) @ _small_rotation(spec.calib_error_deg, rng)
     specs = {s.name: s for s in truth.specs}
-    imu = [_calibrated_imu(streams[n], R_L_I, specs[n].R_B_S @ _small_rotation(spec.calib_error_deg, rng), pose_time)
+    imu = [_calibrated_imu(streams[n], R_L_I, specs[n].R_B_S @ _small_rotation(spec.calib_error_deg, rng), imu_time)
            for n in IMU_NAMES]
     counts = np.array([len(c) for c in clouds])
     return RigSequence(
@@ -240,13 +265,14 @@ def generate(spec: SequenceSpec, cache_dir: str | Path) -> Path:
 
 
 def ensure_cached(specs: list[SequenceSpec], cache_dir: str | Path, workers: int = 2) -> list[Path]:
-    """Cache all ``specs`` (at most 2 worker processes), printing progress to stderr; their paths, in order."""
+    """Cache all ``specs`` (``workers`` processes, at most the machine's cores), printing progress to stderr;
+    their paths, in order."""
     cache_dir = Path(cache_dir)
     missing = [s for s in specs if not (cache_dir / f"{s.key()}.npz").exists()]
     if missing:
         print(f"rigdata: simulating {len(missing)} of {len(specs)} sequences into {cache_dir}", file=sys.stderr,
               flush=True)
-        workers = max(1, min(workers, 2))
+        workers = max(1, min(workers, os.cpu_count() or 1))
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             for i, _ in enumerate(pool.map(generate, missing, [cache_dir] * len(missing)), 1):
                 if i % 10 == 0 or i == len(missing):

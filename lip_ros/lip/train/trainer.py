@@ -14,7 +14,7 @@ import math
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -23,7 +23,7 @@ from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_kinematics import SkeletonTensors, forward_kinematics, six_d_to_matrix
 from lip_ros.lip.nets.config import LipConfig
 from lip_ros.lip.nets.lip_model import LipModel
-from lip_ros.lip.nets.losses import lip_losses, pose_metrics
+from lip_ros.lip.nets.losses import LossTargets, lip_losses, pose_metrics
 from lip_ros.lip.nets.models import LipNet
 from lip_ros.lip.train.dataset import PreparedSequence, WindowSampler, stack_prepared
 
@@ -46,6 +46,12 @@ class TrainOptions:
     val_every: int = 250
     max_minutes: float = math.inf  # stop early (with a checkpoint) after this much wall time
     stop_after: int = 0  # if > 0, stop (with a checkpoint) after this step; the schedule still spans ``steps``
+    device: str = "cpu"  # torch device of the training ("cuda" on a GPU machine)
+    fit_minutes: float = 0.0  # if > 0, the schedule is cut (once, at the 50th step) to end in about this time
+
+
+_FIT_AFTER = 50  # steps timed before ``fit_minutes`` cuts the schedule
+_FIT_MARGIN = 0.9  # of the remaining time's steps kept (validation and checkpoints take the rest)
 
 
 def _lr(opt: TrainOptions, step: int) -> float:
@@ -53,13 +59,21 @@ def _lr(opt: TrainOptions, step: int) -> float:
     return opt.lr * warm * (0.05 + 0.95 * 0.5 * (1.0 + math.cos(math.pi * min(step / opt.steps, 1.0))))
 
 
+def _to(device: torch.device, inputs: tuple[torch.Tensor, ...], target: LossTargets
+        ) -> tuple[tuple[torch.Tensor, ...], LossTargets]:
+    """A batch moved to ``device``."""
+    moved = {k: v.to(device, non_blocking=True) for k, v in target.items()}
+    return tuple(x.to(device, non_blocking=True) for x in inputs), LossTargets(**moved)
+
+
 @torch.no_grad()
 def evaluate(net: LipNet, sequences: list[PreparedSequence], skel: SkeletonTensors) -> dict[str, float]:
     """Mean errors over whole sequences fed from their start: MPJPE (mm), MPJPE of FK with the true
-    skeleton (mm), global joint angle (deg), root translation (cm) on frames with a performer; and the loss."""
+    skeleton (mm), global joint angle (deg), root translation (cm) on frames with a performer; and the loss.
+    Runs on the device of ``net``."""
     net.eval()
     length = min(len(s) for s in sequences)
-    inputs, target = stack_prepared(sequences, [0] * len(sequences), length)
+    inputs, target = _to(next(net.parameters()).device, *stack_prepared(sequences, [0] * len(sequences), length))
     out, _ = net(*inputs)
     loss, _ = lip_losses(out, target, skel, net.config.lambdas)
     rot = six_d_to_matrix(out["rot6d"])
@@ -98,9 +112,11 @@ def train(
     opt: TrainOptions,
     out_dir: str | Path,
     resume: bool = False,
+    init: dict[str, torch.Tensor] | None = None,
     log: Callable[[str], None] = lambda msg: print(msg, file=sys.stderr, flush=True),
 ) -> dict[str, float]:
-    """Train (or resume from ``out_dir/checkpoint.pt``); the best validation weights go to ``out_dir/best``.
+    """Train (or resume from ``out_dir/checkpoint.pt``) from the weights ``init`` (a state_dict; None: random);
+    the best validation weights go to ``out_dir/best``.
 
     Returns the last validation metrics.
     """
@@ -108,10 +124,14 @@ def train(
     out_dir.mkdir(parents=True, exist_ok=True)
     ckpt_path = out_dir / "checkpoint.pt"
     torch.manual_seed(opt.seed)
+    device = torch.device(opt.device)
     net = LipNet(config)
+    if init is not None:
+        net.load_state_dict(init)
+    net = net.to(device)
     optim = torch.optim.AdamW(net.parameters(), lr=opt.lr, weight_decay=opt.weight_decay)
     sampler = WindowSampler(train_set, opt.window, opt.batch, opt.seed)
-    skel = SkeletonTensors(load_skeleton())
+    skel = SkeletonTensors(load_skeleton(), device=device)
     step, best = 0, math.inf
     if resume and ckpt_path.exists():
         ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
@@ -124,7 +144,7 @@ def train(
         step, best = int(ckpt["step"]), float(ckpt["best"])
         log(f"resumed at step {step} from {ckpt_path}")
     params = sum(p.numel() for p in net.parameters())
-    log(f"model: {params} parameters; {len(train_set)} train / {len(val_set)} val sequences; "
+    log(f"model: {params} parameters on {device}; {len(train_set)} train / {len(val_set)} val sequences; "
         f"{sum(len(s) for s in train_set)} train frames")
     t0, metrics, running = time.monotonic(), {}, {}
     start_step = step
@@ -132,7 +152,7 @@ def train(
         net.train()
         for g in optim.param_groups:
             g["lr"] = _lr(opt, step)
-        inputs, target = sampler.next()
+        inputs, target = _to(device, *sampler.next())
         out, _ = net(*inputs)
         loss, terms = lip_losses(out, target, skel, config.lambdas)
         optim.zero_grad(set_to_none=True)
@@ -143,6 +163,12 @@ def train(
         for k, v in terms.items():
             running[k] = running.get(k, 0.0) + v
         elapsed = time.monotonic() - t0
+        if opt.fit_minutes > 0 and step == start_step + _FIT_AFTER:
+            left = max(60.0 * opt.fit_minutes - elapsed, 0.0)
+            fitted = int(step + _FIT_MARGIN * (step - start_step) / elapsed * left)
+            if fitted < opt.steps:
+                log(f"schedule cut from {opt.steps} to {fitted} steps to end within {opt.fit_minutes} min")
+                opt = replace(opt, steps=fitted)
         if step % opt.log_every == 0:
             rate = (step - start_step) / elapsed
             avg = " ".join(f"{k}={v / opt.log_every:.4f}" for k, v in running.items())

@@ -20,7 +20,11 @@ import numpy as np
 from lip_ros.rig.motion.posture import CHANNELS, YAW, BodyRig, Drive, FootPlan, U, V, Z, posture
 from lip_ros.rig.motion.primitives import EasedKeys, Oscillator, rotate_2d, smoothstep, softplus
 
-__all__ = ["Anchor", "Area", "Style", "Clip", "PostureClip", "Choreo", "plan_feet"]
+__all__ = ["Anchor", "Area", "Style", "Clip", "PostureClip", "Choreo", "plan_feet", "ENERGY_RANGE", "TEMPO_RANGE"]
+
+#: The rig's performers' style: amplitude factor and duration factor (larger is slower), drawn uniformly.
+ENERGY_RANGE = (0.8, 1.2)
+TEMPO_RANGE = (0.85, 1.15)
 
 _PLACEMENT = ("u", "v", "yaw")  # channels that may end away from zero (where the clip leaves the body)
 
@@ -58,8 +62,9 @@ class Style:
     tempo: float  # duration factor, about 1 (larger is slower)
 
     @classmethod
-    def draw(cls, rng: np.random.Generator) -> Style:
-        """A random style."""
+    def draw(cls, rng: np.random.Generator, energy: tuple[float, float] = ENERGY_RANGE,
+             tempo: tuple[float, float] = TEMPO_RANGE) -> Style:
+        """A random style: relaxed posture, ``energy`` and ``tempo`` uniform in their ranges."""
         arm_e, arm_f, elbow = -rng.uniform(1.22, 1.38), rng.uniform(0.0, 0.12), rng.uniform(0.15, 0.35)
         neutral = {
             "l_e": arm_e,
@@ -73,7 +78,7 @@ class Style:
             "spine_flex": rng.uniform(-0.04, 0.1),
             "head_flex": rng.uniform(-0.08, 0.1),
         }
-        return cls(neutral, float(rng.uniform(0.8, 1.2)), float(rng.uniform(0.85, 1.15)))
+        return cls(neutral, float(rng.uniform(*energy)), float(rng.uniform(*tempo)))
 
     def rest(self, name: str) -> float:
         """Relaxed value of a posture channel."""

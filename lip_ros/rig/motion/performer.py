@@ -38,7 +38,7 @@ from lip_ros.rig.motion.acts import (
     build_sync_jump,
     build_turn,
 )
-from lip_ros.rig.motion.clips import Anchor, Area, Clip, Style
+from lip_ros.rig.motion.clips import ENERGY_RANGE, TEMPO_RANGE, Anchor, Area, Clip, Style
 from lip_ros.rig.motion.gait import GaitClip
 from lip_ros.rig.motion.posture import BodyRig
 from lip_ros.rig.motion.primitives import RoutePath, smoothstep, wrap_angle
@@ -250,11 +250,15 @@ def _calibration(rig: BodyRig, seed: int, anchor: Anchor) -> list[tuple[str, _Ho
     ]
 
 
-def _plan_activities(scenario: str, budget: float, rng: np.random.Generator) -> list[tuple[str, float]]:
-    """Activities and their durations filling ``budget`` seconds (gaps between them excluded)."""
+def _plan_activities(scenario: str, budget: float, rng: np.random.Generator,
+                     activities: tuple[str, ...] = ACTIVITIES) -> list[tuple[str, float]]:
+    """Activities and their durations filling ``budget`` seconds (gaps between them excluded); a ``mixed``
+    scenario chains some of ``activities``."""
     if scenario != "mixed":
         return [(scenario, budget)]
-    fitting = [a for a in ACTIVITIES if MIN_DURATION[a] <= budget]
+    fitting = [a for a in activities if MIN_DURATION[a] <= budget]
+    if not fitting:
+        raise ValueError(f"none of {activities} fits in {budget:.1f} s")
     count = int(np.clip(budget // 10.0, 1, 6))
     while True:
         names: list[str] = []
@@ -288,21 +292,26 @@ def make_motion(
     calibration: bool = True,
     skeleton: Skeleton | None = None,
     facing_deg: float = 0.0,
+    activities: tuple[str, ...] = ACTIVITIES,
+    energy: tuple[float, float] = ENERGY_RANGE,
+    tempo: tuple[float, float] = TEMPO_RANGE,
 ) -> PerformerMotion:
     """A performer's motion: calibration (optional) then ``scenario`` for ``duration_s`` seconds in all.
 
     ``centre`` (3,) (or (2,)) is the middle of the capture area in L (its z is
     ignored: the performer stands on the ground at z = -lidar_height);
-    ``body_scale`` multiplies the contract skeleton (random in [0.9, 1.1] if
+    ``body_scale`` multiplies ``skeleton`` (default: the contract's; random in [0.9, 1.1] if
     None); the performer starts (and calibrates) facing the LiDAR turned by
-    ``facing_deg`` (counter-clockwise seen from above). Same arguments, same motion.
+    ``facing_deg`` (counter-clockwise seen from above); a ``mixed`` scenario chains some of ``activities``;
+    the style's ``energy`` (amplitude factor) and ``tempo`` (duration factor) are drawn from their ranges.
+    Same arguments, same motion.
     """
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; choose from {SCENARIOS}")
     rng = np.random.default_rng([seed, 0])
     scale = float(rng.uniform(0.9, 1.1)) if body_scale is None else float(body_scale)
     rig = BodyRig((skeleton or load_skeleton()).scaled(scale))
-    style = Style.draw(np.random.default_rng([seed, 2]))
+    style = Style.draw(np.random.default_rng([seed, 2]), energy, tempo)
     centre_xy = np.asarray(centre, dtype=np.float64)[:2]
     area = Area(centre_xy, float(area_radius))
     if area.radius < 0.8 * scale:
@@ -314,7 +323,7 @@ def make_motion(
         raise ValueError(
             f"{scenario} needs duration_s >= {np.ceil(10 * (MIN_DURATION[scenario] + duration_s - budget)) / 10:.1f} s"
         )
-    for k, (name, d) in enumerate(_plan_activities(scenario, budget, np.random.default_rng([seed, 3]))):
+    for k, (name, d) in enumerate(_plan_activities(scenario, budget, np.random.default_rng([seed, 3]), activities)):
         if name == "transition":
             plan.append((name, _Gap(d)))
             continue
@@ -385,10 +394,10 @@ def _loop_heading(anchor: Anchor, area: Area) -> float | None:
     return float(outward + np.copysign(0.5 * np.pi, wrap_angle(anchor.heading - outward)))
 
 
-def random_scenario(rng: np.random.Generator) -> str:
-    """A scenario drawn for training data (``mixed`` most often)."""
-    names = list(_SCENARIO_WEIGHTS)
-    w = np.array(list(_SCENARIO_WEIGHTS.values()))
+def random_scenario(rng: np.random.Generator, activities: tuple[str, ...] = ACTIVITIES) -> str:
+    """A scenario drawn for training data: ``mixed`` most often, else one of ``activities``."""
+    names = [n for n in _SCENARIO_WEIGHTS if n == "mixed" or n in activities]
+    w = np.array([_SCENARIO_WEIGHTS[n] for n in names])
     return names[rng.choice(len(names), p=w / w.sum())]
 
 
@@ -400,10 +409,16 @@ def random_motion(
     area_radius: float = 3.0,
     calibration: bool = True,
     body_scale: float | None = None,
+    skeleton: Skeleton | None = None,
+    activities: tuple[str, ...] = ACTIVITIES,
+    energy: tuple[float, float] = ENERGY_RANGE,
+    tempo: tuple[float, float] = TEMPO_RANGE,
 ) -> PerformerMotion:
-    """``make_motion`` with a scenario drawn from ``seed``, and the body scale unless given (training data)."""
-    scenario = random_scenario(np.random.default_rng([seed, 4]))
+    """``make_motion`` with a scenario drawn from ``seed`` among ``activities`` (and ``mixed`` of them), and the
+    body scale unless given (training data)."""
+    scenario = random_scenario(np.random.default_rng([seed, 4]), activities)
     budget = duration_s - (calibration_duration(seed) if calibration else 0.0)
     if budget < MIN_DURATION[scenario]:
         scenario = "mixed"
-    return make_motion(scenario, duration_s, seed, centre, lidar_height, area_radius, body_scale, calibration)
+    return make_motion(scenario, duration_s, seed, centre, lidar_height, area_radius, body_scale, calibration,
+                       skeleton, activities=activities, energy=energy, tempo=tempo)
