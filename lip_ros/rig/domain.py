@@ -24,8 +24,8 @@ from lip_ros.rig.imu import DOT_ALONG, DOT_SURFACE_M, ImuNoise
 from lip_ros.rig.motion import ACTIVITIES
 from lip_ros.rig.motion.clips import ENERGY_RANGE, TEMPO_RANGE
 
-__all__ = ["Range", "Occluder", "PerformerDraw", "RigDomain", "STANDARD", "TRAINING", "SHIFTED", "DOMAINS",
-           "HELD_OUT_ACTIVITIES"]
+__all__ = ["Range", "Occluder", "PerformerDraw", "RigDomain", "STANDARD", "TRAINING", "SHIFTED", "SHIFT_GROUPS",
+           "DOMAINS", "HELD_OUT_ACTIVITIES"]
 
 Range = tuple[float, float]
 
@@ -172,5 +172,17 @@ SHIFTED = RigDomain(
     lidar_pitch_deg=(8.0, 14.0),
     imu_latency_ms=(20.0, 60.0),
 )
+#: SHIFTED's choices in groups: ``shifted_<group>`` is STANDARD with that group's choices of SHIFTED (which of them
+#: costs what: docs/lip/transfer.md).
+SHIFT_GROUPS = {
+    "body": ("proportions", "torso_girth", "limb_girth"),
+    "imus": ("imu_along", "imu_surface_m", "imu_noise_factor", "imu_latency_ms"),
+    "motion": ("energy", "tempo"),
+    "mount": ("distance_m", "lidar_height_m", "lidar_pitch_deg"),
+    "wall": ("occluder_prob", "occluder_height_m"),
+}
 #: Domains by name.
-DOMAINS = {d.name: d for d in (STANDARD, TRAINING, SHIFTED)}
+DOMAINS = {d.name: d for d in (STANDARD, TRAINING, SHIFTED)} | {
+    f"shifted_{group}": replace(STANDARD, name=f"shifted_{group}", **{f: getattr(SHIFTED, f) for f in choices})
+    for group, choices in SHIFT_GROUPS.items()
+}

@@ -42,7 +42,8 @@ __all__ = ["FIRST_SEEDS", "heldout_configs", "make_heldout_set", "find_captures"
 
 _MAX_BEARING_DEG = 45.0
 _SINGLE_DISTANCE_M = 8.0  # a set of one capture
-#: Each domain's held-out seeds start here (all >= EVAL_SEED_MIN, so no training seed).
+#: Each domain's held-out seeds start here (all >= EVAL_SEED_MIN, so no training seed); the ``shifted_<group>``
+#: domains share SHIFTED's, so that their captures differ from SHIFTED's in the other groups only.
 FIRST_SEEDS = {"standard": EVAL_SEED_MIN, "training": EVAL_SEED_MIN + 100_000, "shifted": EVAL_SEED_MIN + 200_000}
 
 
@@ -50,7 +51,7 @@ def heldout_configs(count: int, seconds: float = 20.0, first_seed: int | None = 
                     columns: int = 1024, domain: str = "standard") -> list[CaptureConfig]:
     """The ``count`` capture configurations of the held-out set of ``domain`` (deterministic); seeds from
     ``first_seed`` (default: the domain's own, :data:`FIRST_SEEDS`)."""
-    first_seed = FIRST_SEEDS[domain] if first_seed is None else first_seed
+    first_seed = FIRST_SEEDS.get(domain, FIRST_SEEDS["shifted"]) if first_seed is None else first_seed
     if first_seed < EVAL_SEED_MIN:
         raise ValueError(f"held-out seeds start at {EVAL_SEED_MIN}, not {first_seed}")
     d = DOMAINS[domain]
