@@ -23,6 +23,7 @@ from lip_ros.lip.segmentation.clusters import describe_clusters, link_components
 from lip_ros.lip.segmentation.scene import BackgroundModel
 from lip_ros.lip.segmentation.tracking import Track, associate
 from lip_ros.rig.capture import CaptureConfig, CaptureSession
+from lip_ros.rig.domain import Occluder
 from lip_ros.rig.lidar import Actor, OusterModel
 from lip_ros.rig.scene import Boxes, Scene
 
@@ -477,3 +478,31 @@ def test_track_outline_grows_on_both_sides_only_when_arms_spread():
     np.testing.assert_allclose(walker.origin, [8.0, 1.0])
     np.testing.assert_allclose(walker.spread, [0.0, 0.0])
     assert walker.stay_frames == 1
+
+
+@pytest.mark.parametrize("where", ["behind a wall", "legs below the field of view"])
+def test_performer_with_hidden_legs_is_found(where):
+    """A waist-high wall (1 m) in front of the performer, or a LiDAR 3.6 m up close by, hides the legs: the
+    cluster ends ~1 m above the ground, but its lower edge is hidden, so it is still a person (without that
+    rule nothing is ever found)."""
+    if where == "behind a wall":
+        config = CaptureConfig(scenario="arms", seconds=14.0, seed=SEED, columns=1024, distance_m=9.0)
+    else:
+        config = CaptureConfig(scenario="arms", seconds=14.0, seed=SEED, columns=1024, distance_m=4.0,
+                               lidar_height_m=3.6, lidar_pitch_deg=10.0)
+    session = CaptureSession(config)
+    if where == "behind a wall":
+        session.scene = session.scene.with_box(*Occluder(1.5, 0.0, 3.0, 1.0).box(
+            np.array([config.distance_m, 0.0, 0.0]), -config.lidar_height_m))
+    runs = {True: Run(), False: Run()}
+    segmenters = {True: PerformerSegmenter(), False: PerformerSegmenter(SegmentationConfig(hidden_feet=False))}
+    lowest = []
+    for cf in session.frames():
+        for rule, segmenter in segmenters.items():
+            runs[rule].record(segmenter.process(cf.frame.points, cf.stamp_ns), cf.frame.labels)
+        mine = cf.frame.points[cf.frame.labels == 0]
+        level = np.stack([mine[c] for c in "xyz"], axis=1) @ session.lidar_rotation.T  # L in the level world
+        lowest.append(level[:, 2].min() + config.lidar_height_m if len(mine) else np.nan)
+    assert np.nanmin(lowest) > 0.85  # no return of the performer lower than that above the ground
+    assert OK not in runs[False].status
+    assert min(runs[True].mean_scores()) >= MIN_SCORE and sum(runs[True].others) == 0

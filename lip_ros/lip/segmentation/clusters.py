@@ -34,6 +34,7 @@ class Clusters:
     left: np.ndarray  # (K,) horizontal extent to the left of the line of sight to the centroid (m)
     right: np.ndarray  # (K,) ... to its right
     depth: np.ndarray  # (K,) horizontal extent along that line (m)
+    cut_below: np.ndarray | None = None  # (K,) bool: the lower edge is hidden (set by the segmenter; None: unknown)
 
     def __len__(self) -> int:
         return len(self.count)

@@ -101,6 +101,8 @@ class SegmentationConfig:
     max_bottom_m: float = 0.8  # lowest point above the ground (feet on or near it)
     max_width_m: float = 2.3  # across the line of sight (arms out in T-pose: ~1.8)
     max_depth_m: float = 1.5  # along it
+    hidden_feet: bool = True  # a cluster whose lower edge is hidden (a wall, the field of view) may end higher
+    occluder_min_height_m: float = 0.1  # a nearer return below a cluster this high above the ground hides its feet
     # lock
     lock_rule: str = "t_pose"
     expected_xy: tuple[float, float] | None = None  # where the performer calibrates (xy in L), if known
@@ -379,13 +381,47 @@ class PerformerSegmenter:
         angles = (self.layout.row_spacing_rad, 2.0 * np.pi / width)
         labels, k = link_components(rows, sub, xyz, frame.range_m.reshape(-1)[flat], grid, cols is None, angles,
                                     cfg.link_m, cfg.link_spacing, cfg.link_reach)
-        return _Candidates(flat, xyz, describe_clusters(labels, k, xyz, self.ground.height(xyz)))
+        clusters = describe_clusters(labels, k, xyz, self.ground.height(xyz))
+        cut = self._cut_below(frame, rows, flat % width, labels, k)
+        return _Candidates(flat, xyz, replace(clusters, cut_below=cut))
+
+    def _cut_below(self, frame: _Frame, rows: np.ndarray, cols: np.ndarray, labels: np.ndarray, k: int
+                   ) -> np.ndarray:
+        """(K,) bool: clusters whose lower edge is hidden: below most of their lowest returns (those in the
+        cluster's lowest two rows, one per column) the next row returns from something nearer that is not the
+        ground (an occluder in front: a wall, a table), or there is no next row (the bottom of the field of
+        view)."""
+        if k == 0:
+            return np.zeros(0, dtype=bool)
+        height, width = frame.shape
+        lowest = np.lexsort((-rows, labels * width + cols))  # per (cluster, column): the lowest pixel first
+        key = (labels * width + cols)[lowest]
+        low = lowest[np.concatenate([[True], key[1:] != key[:-1]])]
+        bottom_row = np.zeros(k, dtype=np.int64)
+        np.maximum.at(bottom_row, labels, rows)
+        low = low[rows[low] >= bottom_row[labels[low]] - 1]  # the cluster's lower edge, not an arm's
+        below = rows[low] + 1
+        edge = below >= height
+        below = np.minimum(below, height - 1)
+        own = frame.range_m[rows[low], cols[low]]
+        nearer = frame.range_m[below, cols[low]]
+        cfg = self.config
+        front = (nearer > 0.0) & (nearer < own - cfg.margin_m - cfg.margin_per_m * own)
+        if front.any():
+            xyz = frame.xyz(below[front] * width + cols[low][front])
+            front[front] = self.ground.height(xyz) > cfg.occluder_min_height_m  # not the ground before the feet
+        hidden = np.bincount(labels[low], edge | front, minlength=k)
+        return hidden > 0.5 * np.bincount(labels[low], minlength=k)
 
     def _human_sized(self, c: Clusters) -> np.ndarray:
-        """(K,) bool: clusters the size and shape of a person standing on the ground."""
+        """(K,) bool: clusters the size and shape of a person standing on the ground; one whose lower edge is
+        hidden (behind a wall, below the field of view) may end higher than ``max_bottom_m``."""
         cfg = self.config
+        grounded = c.bottom <= cfg.max_bottom_m
+        if cfg.hidden_feet and c.cut_below is not None:
+            grounded |= c.cut_below
         return ((c.count >= cfg.min_points) & (c.top >= cfg.min_top_m) & (c.top <= cfg.max_top_m)
-                & (c.bottom <= cfg.max_bottom_m) & (c.width <= cfg.max_width_m) & (c.depth <= cfg.max_depth_m))
+                & grounded & (c.width <= cfg.max_width_m) & (c.depth <= cfg.max_depth_m))
 
     # ------------------------------------------------------------------ lock
 
