@@ -1,9 +1,12 @@
 """``lip_train``: simulate (and cache) rig sequences, then train the LIP networks.
 
-The shipped weights (docs/lip/training.md)::
+The shipped weights (docs/lip/training.md; on a GPU)::
 
-    lip_train --train-seqs 266 --val-seqs 24 --steps 2400 --max-minutes 65 \\
-        --out /tmp/lip_run_main --export params/weights/lip_small
+    lip_train --hold-out martial --device cuda --workers 16 --train-seqs 569 --val-seqs 24 \\
+        --steps 3912 --batch 32 --val-every 500 --data-dir /tmp/rd --out /tmp/protocol
+    lip_train --device cuda --workers 16 --train-seqs 335 --val-seqs 24 --steps 1263 --batch 32 \\
+        --lr 5e-4 --warmup 20 --val-every 250 --init /tmp/protocol/best --data-dir /tmp/rd2 \\
+        --out /tmp/shipped --export params/weights/lip_small
 """
 
 from __future__ import annotations
