@@ -60,6 +60,12 @@ class ScanLayout:
         return float(np.median(steps[np.isfinite(steps)]))
 
     @property
+    def row_down(self) -> int:
+        """+1 if the rows look lower as their index grows (Ouster's order: row 0 the highest beam), -1 if higher."""
+        steps = np.diff(self.row_elevation_rad)
+        return 1 if np.median(steps[np.isfinite(steps)]) < 0.0 else -1
+
+    @property
     def row_shift(self) -> np.ndarray:
         """(H,) int: the whole columns each row is ahead of the mean, the shift that destaggers it
         (:func:`destagger`); all zero for a destaggered cloud, whose rows look less than half a column apart."""

@@ -83,10 +83,10 @@ class PerformerDraw:
     point_dropout: float
     occluder: Occluder | None
 
-    def imu_noise(self, base: ImuNoise | None = None) -> ImuNoise:
-        """``base`` (default: the DOT datasheet's) with every error (densities, biases, tilt, heading walk, stamp
-        jitter, drops) times the drawn factor."""
-        base = base or ImuNoise()
+    def imu_noise(self) -> ImuNoise:
+        """The DOT datasheet's errors (densities, biases, tilt, heading walk, stamp jitter, drops) times the drawn
+        factor."""
+        base = ImuNoise()
         f = self.imu_noise_factor
         if f == 1.0:
             return base

@@ -480,26 +480,29 @@ def test_track_outline_grows_on_both_sides_only_when_arms_spread():
     assert walker.stay_frames == 1
 
 
-@pytest.mark.parametrize("where", ["behind a wall", "legs below the field of view"])
+@pytest.mark.parametrize("where", ["behind a wall", "behind a wall, rows bottom-up", "legs below the field of view"])
 def test_performer_with_hidden_legs_is_found(where):
     """A waist-high wall (1 m) in front of the performer, or a LiDAR 3.6 m up close by, hides the legs: the
     cluster ends ~1 m above the ground, but its lower edge is hidden, so it is still a person (without that
-    rule nothing is ever found)."""
-    if where == "behind a wall":
+    rule nothing is ever found). Which way is down comes from the rows' elevations: a cloud whose rows run
+    bottom-up works the same."""
+    flip = where.endswith("bottom-up")
+    if where.startswith("behind a wall"):
         config = CaptureConfig(scenario="arms", seconds=14.0, seed=SEED, columns=1024, distance_m=9.0)
     else:
         config = CaptureConfig(scenario="arms", seconds=14.0, seed=SEED, columns=1024, distance_m=4.0,
                                lidar_height_m=3.6, lidar_pitch_deg=10.0)
     session = CaptureSession(config)
-    if where == "behind a wall":
+    if where.startswith("behind a wall"):
         session.scene = session.scene.with_box(*Occluder(1.5, 0.0, 3.0, 1.0).box(
             np.array([config.distance_m, 0.0, 0.0]), -config.lidar_height_m))
     runs = {True: Run(), False: Run()}
     segmenters = {True: PerformerSegmenter(), False: PerformerSegmenter(SegmentationConfig(hidden_feet=False))}
     lowest = []
     for cf in session.frames():
+        points, labels = (cf.frame.points[::-1], cf.frame.labels[::-1]) if flip else (cf.frame.points, cf.frame.labels)
         for rule, segmenter in segmenters.items():
-            runs[rule].record(segmenter.process(cf.frame.points, cf.stamp_ns), cf.frame.labels)
+            runs[rule].record(segmenter.process(points, cf.stamp_ns), labels)
         mine = cf.frame.points[cf.frame.labels == 0]
         level = np.stack([mine[c] for c in "xyz"], axis=1) @ session.lidar_rotation.T  # L in the level world
         lowest.append(level[:, 2].min() + config.lidar_height_m if len(mine) else np.nan)

@@ -394,15 +394,16 @@ class PerformerSegmenter:
         if k == 0:
             return np.zeros(0, dtype=bool)
         height, width = frame.shape
-        lowest = np.lexsort((-rows, labels * width + cols))  # per (cluster, column): the lowest pixel first
+        down = self.layout.row_down  # from the rows' fitted elevations, not from a row order taken for granted
+        depth = rows if down > 0 else height - 1 - rows  # 0 for the highest row, growing downwards
+        lowest = np.lexsort((-depth, labels * width + cols))  # per (cluster, column): the lowest pixel first
         key = (labels * width + cols)[lowest]
         low = lowest[np.concatenate([[True], key[1:] != key[:-1]])]
-        bottom_row = np.zeros(k, dtype=np.int64)
-        np.maximum.at(bottom_row, labels, rows)
-        low = low[rows[low] >= bottom_row[labels[low]] - 1]  # the cluster's lower edge, not an arm's
-        below = rows[low] + 1
-        edge = below >= height
-        below = np.minimum(below, height - 1)
+        bottom = np.zeros(k, dtype=np.int64)
+        np.maximum.at(bottom, labels, depth)
+        low = low[depth[low] >= bottom[labels[low]] - 1]  # the cluster's lower edge, not an arm's
+        edge = depth[low] + 1 >= height
+        below = np.clip(rows[low] + down, 0, height - 1)
         own = frame.range_m[rows[low], cols[low]]
         nearer = frame.range_m[below, cols[low]]
         cfg = self.config
