@@ -22,7 +22,7 @@ import numpy as np
 
 from lip_ros.core.skeleton import Skeleton
 
-__all__ = ["BodyModel", "TORSO_PARTS", "LIMB_PARTS"]
+__all__ = ["BodyModel", "TORSO_PARTS", "LIMB_PARTS", "capsule_hit"]
 
 # The capsule table below is drawn for the contract skeleton (scale 1); it scales with ``skeleton.scale``.
 
@@ -84,7 +84,7 @@ def _sphere_hit(origin: np.ndarray, dirs: np.ndarray, centre: np.ndarray, radius
     return np.where((h >= 0.0) & (t > 0.0), t, np.inf)
 
 
-def _capsule_hit(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
+def capsule_hit(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Entry distance of unit rays (origin (3,), dirs (M, 3)) into capsules (rowwise (M, 3), (M,)), inf if none.
 
     The first hit of a capsule is the nearest of its open cylinder and its two end spheres.
@@ -207,7 +207,7 @@ class BodyModel:
         along = dirs @ centre.T  # (N, K)
         near = (np.sum(centre * centre, axis=1) - along * along <= reach * reach) & (along > -reach)
         ray, cap = np.nonzero(near)
-        t = _capsule_hit(origin, dirs[ray], caps.a[cap], caps.b[cap], caps.r[cap])
+        t = capsule_hit(origin, dirs[ray], caps.a[cap], caps.b[cap], caps.r[cap])
         best = np.full(n, np.inf)
         np.minimum.at(best, ray, t)
         win = np.isfinite(t) & (t == best[ray])

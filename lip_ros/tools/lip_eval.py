@@ -29,6 +29,7 @@ from lip_ros.lip.evaluation.captures import FIRST_SEEDS, find_captures, heldout_
 from lip_ros.lip.evaluation.evaluate import MODES, SURFACE_POINTS, CaptureEvaluation, evaluate_capture
 from lip_ros.lip.evaluation.report import OURS, VARIANTS, build_report, plot_report, to_markdown
 from lip_ros.lip.nets.lip_model import BONE_TOLERANCE_DEG, SHIPPED_WEIGHTS, LipModel
+from lip_ros.lip.surface_fit import SURFACE_FIT
 from lip_ros.lip.train.rigdata import EVAL_SEED_MIN
 from lip_ros.resources import params_dir
 from lip_ros.rig.domain import DOMAINS
@@ -72,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--bone-tolerance", type=float, default=BONE_TOLERANCE_DEG, metavar="DEG",
                    help="how far the forearms and shanks may be from their calibrated IMUs' orientations "
                         "(0: the measurement; inf: the network's estimate)")
+    r.add_argument("--no-surface-fit", dest="surface_fit", action="store_false",
+                   help="the network's translation, not fitted to the body surface the LiDAR sees")
     r.set_defaults(func=_run)
     t = sub.add_parser("transfer", help="in distribution against out of distribution: two run reports side by side")
     t.add_argument("in_report", type=Path, help="report.json of a run on STANDARD captures")
@@ -91,19 +94,19 @@ def _make_set(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load(path: Path | None, bone_tolerance_deg: float) -> tuple[LipModel, str]:
+def _load(path: Path | None, bone_tolerance_deg: float, surface_fit: bool) -> tuple[LipModel, str]:
     if path is None:
         path = params_dir() / "weights" / SHIPPED_WEIGHTS
     if not path.with_suffix(".pt").is_file():
         raise FileNotFoundError(f"no weights at {path}.pt (train them: lip_train ... --export PATH)")
-    return LipModel.load(path, bone_tolerance_deg), str(path)
+    return LipModel.load(path, bone_tolerance_deg, SURFACE_FIT if surface_fit else None), str(path)
 
 
 def _run(args: argparse.Namespace) -> int:
     set_threads(args.threads)
     bags = find_captures(args.captures)
-    models = {OURS: _load(args.weights, args.bone_tolerance)}
-    models.update({name: _load(path, args.bone_tolerance) for name, path in args.variant})
+    models = {OURS: _load(args.weights, args.bone_tolerance, args.surface_fit)}
+    models.update({name: _load(path, args.bone_tolerance, args.surface_fit) for name, path in args.variant})
     modes = MODES if args.mode == "both" else (args.mode,)
     contract_surface = BodySurface(BodyModel(load_skeleton()), SURFACE_POINTS)
     results: dict[str, dict[str, list[CaptureEvaluation]]] = {m: {mode: [] for mode in modes} for m in models}

@@ -15,6 +15,7 @@ from lip_ros.core.skeleton import joint_state_names, load_skeleton
 from lip_ros.lip.batch import replay_bag
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.pipeline import LipPipeline, Outcome
+from lip_ros.lip.surface_fit import SurfaceFitter
 
 pytestmark = pytest.mark.ros  # DDS traffic or subprocesses
 
@@ -59,6 +60,13 @@ def test_every_frame_is_accounted_for(replay: tuple[Path, str]) -> None:
     # every performer cloud without a pose was accounted for upstream (calibrating or skipped there)
     upstream = sum(v for k, v in frames.items() if k == "frames calibrating" or k.startswith("frames skipped: IMU"))
     assert int(last["pose_node: frames"].values["performer clouds without bones"]) == upstream
+
+
+def test_the_pose_node_reports_the_performers_shape(replay: tuple[Path, str]) -> None:
+    """The surface fit's running estimate of the performer's girths and bone lengths is on /diagnostics."""
+    values = _last_statuses(replay[0])["pose_node: frames"].values
+    shape = {name: float(values[f"performer {name}"]) for name in SurfaceFitter().shape_names}
+    assert all(0.7 < v < 1.4 for v in shape.values()), shape  # a rig body: within its girth and size spread
 
 
 def test_graph_agrees_with_the_batch_core(replay: tuple[Path, str]) -> None:

@@ -177,7 +177,9 @@ def to_markdown(report: dict) -> str:
     else:
         rows.append([VARIANTS["trans_no_pose"], "not trained", ""])
     rows.append(["full corrector (ours)", _f(trans["corrector"]["trans_cm"], 2), _f(trans["corrector"]["cd_cm"], 2)])
-    lines += [*_table(["method", "Trans cm", "CD cm"], rows), ""]
+    lines += [*_table(["method", "Trans cm", "CD cm"], rows),
+              "", "Ours: the network's corrector, then the surface fit (docs/lip/transfer.md) unless the command says "
+              "`--no-surface-fit`.", ""]
 
     lines += ["**Frames** (all captures)", ""]
     rows = []

@@ -9,7 +9,8 @@ one batched forward. All give the same numbers (up to float rounding).
 The published joints are forward kinematics of the estimated rotations on
 the contract skeleton, scaled by the body scale that best fits the refined
 joint map over the sequence so far (least squares), so joints and rotations
-always agree.
+always agree; the translation is then fitted to the points
+(:mod:`lip_ros.lip.surface_fit`, on by default).
 Latency of ``step``: none beyond its own compute, every output uses frames up
 to the current one only.
 
@@ -34,6 +35,7 @@ from lip_ros.lip.nets.config import LipConfig
 from lip_ros.lip.nets.models import LipNet, State
 from lip_ros.lip.nets.preprocess import FrameInput, Preprocessor
 from lip_ros.lip.sensors import IMU_NAMES
+from lip_ros.lip.surface_fit import SURFACE_FIT, SurfaceFitConfig, SurfaceFitter
 from lip_ros.resources import params_dir
 
 __all__ = ["LipOutput", "LipModel", "SHIPPED_WEIGHTS", "BONE_TOLERANCE_DEG", "stack_frames"]
@@ -97,9 +99,11 @@ def _measured_bones(rot: np.ndarray, imu_rot: np.ndarray, tolerance_deg: float) 
 
 
 def _to_lidar(out: dict[str, torch.Tensor], frames: Sequence[FrameInput], scale: _ScaleTracker,
-              imu_rot: np.ndarray, bone_tolerance_deg: float) -> LipOutput:
+              imu_rot: np.ndarray, bone_tolerance_deg: float, clouds: Sequence[np.ndarray],
+              fitter: SurfaceFitter | None) -> LipOutput:
     """Map the (1, T, ...) outputs in V back to L; the instrumented bones within ``bone_tolerance_deg`` of
-    ``imu_rot`` (T, 4, 3, 3) (inf: the network's); joints by forward kinematics on the scaled skeleton."""
+    ``imu_rot`` (T, 4, 3, 3) (inf: the network's); joints by forward kinematics on the scaled skeleton; the
+    translation fitted to the ``clouds`` by ``fitter`` (None: the network's)."""
     R = np.stack([f.R_L_V for f in frames])  # (T, 3, 3)
     mean = np.stack([f.mean for f in frames])
     rot = six_d_to_matrix(out["rot6d"][0].double()).numpy()
@@ -108,11 +112,14 @@ def _to_lidar(out: dict[str, torch.Tensor], frames: Sequence[FrameInput], scale:
         rot = _measured_bones(rot, imu_rot, bone_tolerance_deg)
     _, unit = forward_kinematics(load_skeleton(), rot)
     body_scale = scale.update(unit, np.einsum("tab,tjb->tja", R, out["joints"][0].double().numpy()))
-    offset = np.einsum("tab,tb->ta", R, out["offset"][0].double().numpy())
+    translation = mean + np.einsum("tab,tb->ta", R, out["offset"][0].double().numpy())
+    if fitter is not None:
+        translation = np.stack([fitter.fit(c, r, s, t).translation
+                                for c, r, s, t in zip(clouds, rot, body_scale, translation, strict=True)])
     return LipOutput(
         joints=unit * body_scale[:, None, None],
         local_rot=rot,
-        translation=mean + offset,
+        translation=translation,
         present=np.array([f.present for f in frames]),
         body_scale=body_scale,
     )
@@ -126,21 +133,26 @@ class LipModel:
     the output far from it (0: the measurement itself; inf: the network's estimate; docs/lip/transfer.md).
     """
 
-    def __init__(self, net: LipNet, bone_tolerance_deg: float = BONE_TOLERANCE_DEG) -> None:
+    def __init__(self, net: LipNet, bone_tolerance_deg: float = BONE_TOLERANCE_DEG,
+                 surface_fit: SurfaceFitConfig | None = SURFACE_FIT) -> None:
         self.net = net.eval()
         self.bone_tolerance_deg = float(bone_tolerance_deg)
+        self.surface_fit = surface_fit
+        self._fitter = SurfaceFitter(surface_fit) if surface_fit is not None else None
         self.config: LipConfig = net.config
         self._pre = Preprocessor(self.config.num_points)
         self._state: State | None = None
         self._scale = _ScaleTracker()
 
     @classmethod
-    def load(cls, path: str | Path | None = None, bone_tolerance_deg: float = BONE_TOLERANCE_DEG) -> LipModel:
-        """Load ``<path>.pt`` and ``<path>.json`` (default: the shipped weights)."""
+    def load(cls, path: str | Path | None = None, bone_tolerance_deg: float = BONE_TOLERANCE_DEG,
+             surface_fit: SurfaceFitConfig | None = SURFACE_FIT) -> LipModel:
+        """Load ``<path>.pt`` and ``<path>.json`` (default: the shipped weights); the other arguments as the
+        constructor's."""
         path = Path(path) if path is not None else params_dir() / "weights" / SHIPPED_WEIGHTS
         net = LipNet(LipConfig.load(path.with_suffix(".json")))
         net.load_state_dict(torch.load(path.with_suffix(".pt"), map_location="cpu", weights_only=True))
-        return cls(net, bone_tolerance_deg)
+        return cls(net, bone_tolerance_deg, surface_fit)
 
     def save(self, path: str | Path, float16: bool = False) -> None:
         """Write ``<path>.pt`` (state_dict on the CPU, floats as float32, or float16: half the file) and
@@ -152,11 +164,21 @@ class LipModel:
         torch.save(state, path.with_suffix(".pt"))
         self.config.save(path.with_suffix(".json"))
 
+    @property
+    def performer_shape(self) -> dict[str, float]:
+        """The streamed performer's shape as the surface fit sees it so far (girths and bone lengths, 1 = the
+        contract body); empty without the fit."""
+        if self._fitter is None:
+            return {}
+        return {k: round(float(v), 3) for k, v in zip(self._fitter.shape_names, self._fitter.shape, strict=True)}
+
     def reset(self) -> None:
-        """Start a new sequence: forget the recurrent state, the last point mean and the body scale."""
+        """Start a new sequence: forget the recurrent state, the last point mean, the body scale and shape."""
         self._pre.reset()
         self._state = None
         self._scale = _ScaleTracker()
+        if self._fitter is not None:
+            self._fitter.reset()
 
     def step(self, points: np.ndarray, imu_rot: np.ndarray, imu_acc: np.ndarray) -> LipOutput:
         """One LiDAR frame: performer points (N, 3) in L (N may be 0), bone rotations (4, 3, 3) and free
@@ -170,7 +192,8 @@ class LipModel:
         rounding); T clouds (N_t, 3), (T, 4, 3, 3), (T, 4, 3); outputs with a leading T."""
         if self.config.bidirectional:
             raise ValueError("a bidirectional (offline) model cannot stream; use run()")
-        result, self._state = self._forward(self._pre, clouds, imu_rot, imu_acc, self._state, self._scale)
+        result, self._state = self._forward(self._pre, clouds, imu_rot, imu_acc, self._state, self._scale,
+                                            self._fitter)
         return result
 
     def run(self, clouds: Sequence[np.ndarray], imu_rot: np.ndarray, imu_acc: np.ndarray) -> LipOutput:
@@ -178,13 +201,16 @@ class LipModel:
 
         Independent of (and not changing) the streaming state of ``step``.
         """
-        return self._forward(Preprocessor(self.config.num_points), clouds, imu_rot, imu_acc, None, _ScaleTracker())[0]
+        fitter = SurfaceFitter(self.surface_fit) if self.surface_fit is not None else None
+        return self._forward(Preprocessor(self.config.num_points), clouds, imu_rot, imu_acc, None, _ScaleTracker(),
+                             fitter)[0]
 
     @torch.no_grad()
     def _forward(self, pre: Preprocessor, clouds: Sequence[np.ndarray], imu_rot: Sequence[np.ndarray],
-                 imu_acc: Sequence[np.ndarray], state: State | None, scale: _ScaleTracker) -> tuple[LipOutput, State]:
+                 imu_acc: Sequence[np.ndarray], state: State | None, scale: _ScaleTracker,
+                 fitter: SurfaceFitter | None) -> tuple[LipOutput, State]:
         """Frames through ``pre`` and the network from ``state``; the outputs in L and the state after them."""
         frames = [pre(p, r, a) for p, r, a in zip(clouds, imu_rot, imu_acc, strict=True)]
         out, state = self.net(*stack_frames(frames), state)
         measured = np.asarray(imu_rot, dtype=np.float64).reshape(-1, len(IMU_NAMES), 3, 3)
-        return _to_lidar(out, frames, scale, measured, self.bone_tolerance_deg), state
+        return _to_lidar(out, frames, scale, measured, self.bone_tolerance_deg, clouds, fitter), state

@@ -42,6 +42,7 @@ from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.sensors import IMU_NAMES, LIP_TOPICS
 from lip_ros.lip.stages import Outcome, PoseStage
+from lip_ros.lip.surface_fit import SURFACE_FIT
 from lip_ros.nodes.base import (
     BETWEEN_NODES,
     RELIABLE,
@@ -79,6 +80,8 @@ class PoseNode(GraphNode):
         "performer_topic": Param("input: the performer's points of segmentation_node"),
         "bone_topics": CalibrationNode.PARAMS["bone_topics"],
         "weights": Param("LIP weights <path>.pt + <path>.json ('' = the shipped ones)"),
+        "surface_fit": Param("fit the translation and the performer's shape to the points (false: the network's "
+                             "translation; docs/lip/transfer.md)"),
         "frame_id": Param("frame of the outputs ('' = the LiDAR cloud's frame)"),
         "publish_tf": Param("broadcast the pelvis on /tf (needs tf2_msgs)"),
         "tf_child_frame": Param("child frame of the /tf pelvis transform (the URDF's root link)"),
@@ -93,7 +96,8 @@ class PoseNode(GraphNode):
         super().__init__(self.NAME, **kwargs)
         p = self.params
         try:
-            model = LipModel.load(Path(p["weights"]).expanduser() if p["weights"] else None)
+            model = LipModel.load(Path(p["weights"]).expanduser() if p["weights"] else None,
+                                  surface_fit=SURFACE_FIT if p["surface_fit"] else None)
         except (OSError, ValueError, KeyError, RuntimeError) as exc:
             raise ParameterError(f"cannot load weights {p['weights'] or '(shipped)'}: {exc}") from exc
         self.stage = PoseStage(model, max_gap_ns=int(p["max_pose_gap_s"] * 1e9))
@@ -177,6 +181,7 @@ class PoseNode(GraphNode):
         message = "estimating" if level == DiagnosticLevel.OK else "no pose yet"
         return level, message, {"sequences": self.stage.sequences, "waiting stamps": self._joiner.open_stamps,
                                 "performer clouds without bones": self._without_bones,
+                                **{f"performer {k}": v for k, v in self.stage.model.performer_shape.items()},
                                 **self._latency.values("latency_ms"),
                                 **self._graph_latency.values("graph_latency_ms")}
 

@@ -1,0 +1,105 @@
+"""The surface fit: the translation and the performer's shape from the points a LiDAR sees of the body."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lip_ros.core.body import BodyModel
+from lip_ros.core.skeleton import forward_kinematics, load_skeleton
+from lip_ros.lip.surface_fit import SurfaceFitConfig, SurfaceFitter
+
+_FACING_THE_LIDAR = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # M (x left, y up, z fwd) in L
+
+
+def _scan(torso: float, limb: float, proportions: dict[str, float], yaw: float, rng: np.random.Generator,
+          distance_m: float = 8.0, noise_m: float = 0.01) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points of a performer standing ``distance_m`` in front of a LiDAR at the origin (0.35 deg beams, range
+    noise ``noise_m``), its local rotations and true pelvis position."""
+    skeleton = load_skeleton().with_proportions(proportions)
+    body = BodyModel(skeleton, torso_girth=torso, limb_girth=limb)
+    rot = np.broadcast_to(np.eye(3), (24, 3, 3)).copy()
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot[0] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ _FACING_THE_LIDAR
+    rot[skeleton.index("left_shoulder")] = rot[skeleton.index("right_shoulder")] = np.eye(3)
+    glob, pos = forward_kinematics(skeleton, rot)
+    pelvis = np.array([distance_m, 0.0, skeleton.pelvis_height])
+    az, el = np.meshgrid(np.radians(np.arange(-4.0, 4.0, 0.35)), np.radians(np.arange(-12.0, 12.0, 0.35)))
+    dirs = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1).reshape(-1, 3)
+    rng_m, _, _ = body.raycast(np.zeros(3), dirs, glob, pos + pelvis)
+    hit = np.isfinite(rng_m)
+    points = dirs[hit] * (rng_m[hit] + noise_m * rng.standard_normal(hit.sum()))[:, None]
+    return points, rot, pelvis
+
+
+@pytest.mark.parametrize(("torso", "limb", "proportions"), [
+    (1.0, 1.0, {}),
+    (1.4, 0.75, {}),  # a stocky torso, thin limbs: the point mean moves 5 cm against the pelvis
+    (1.0, 1.0, {"spine": 0.88, "thigh": 1.13, "shank": 1.14}),  # long legs, short back: the pelvis sits higher
+    (1.4, 0.75, {"spine": 1.13, "thigh": 0.87, "shank": 0.87}),
+])
+def test_fit_finds_the_pelvis_and_the_shape_of_a_body_unlike_the_contract(torso, limb, proportions):
+    rng = np.random.default_rng(7)
+    fitter = SurfaceFitter()
+    errors = []
+    for k in range(30):
+        points, rot, pelvis = _scan(torso, limb, proportions, 0.4 * np.sin(k / 5.0), rng)
+        start = pelvis + np.array([-0.05, 0.02, 0.04])  # a network's estimate, 6.7 cm off
+        fit = fitter.fit(points, rot, 1.0, start)
+        assert fit.fitted
+        errors.append(np.linalg.norm(fit.translation - pelvis))
+    assert np.mean(errors[10:]) < 0.01  # once the shape is known: within 1 cm (from 6.7)
+    expected = [torso, limb, 1.0] + [proportions.get(g, 1.0) for g in SurfaceFitConfig().proportion_groups]
+    np.testing.assert_allclose(fit.shape[:3], expected[:3], atol=0.04)  # girths
+    np.testing.assert_allclose(fit.shape[3:], expected[3:], atol=0.1)  # bone lengths: seen less directly
+    assert fit.residual_m < 0.01
+
+
+def test_range_noise_does_not_bias_the_fit():
+    """Range noise of 2 cm along the rays: distances to the surface measured across it (not along the ray) made
+    the body 10 % too thin and 1.4 cm too near the LiDAR; along the ray they do not."""
+    rng = np.random.default_rng(5)
+    shapes, errors = [], []
+    for _ in range(30):
+        points, rot, pelvis = _scan(1.0, 1.0, {}, 0.0, rng, noise_m=0.02)
+        fit = SurfaceFitter().fit(points, rot, 1.0, pelvis)  # one frame each: the bias, not a running average
+        shapes.append(fit.shape)
+        errors.append(fit.translation - pelvis)
+    np.testing.assert_allclose(np.mean(shapes, axis=0), 1.0, atol=0.03)
+    assert np.linalg.norm(np.mean(errors, axis=0)) < 0.003
+
+
+def test_outliers_do_not_pull_the_body():
+    rng = np.random.default_rng(3)
+    fitter = SurfaceFitter()
+    for _ in range(10):
+        points, rot, pelvis = _scan(1.0, 1.0, {}, 0.0, rng)
+        stray = pelvis + np.array([-0.4, 0.0, 0.0]) + rng.uniform(-0.2, 0.2, (len(points) // 10, 3))  # a tenth more
+        fit = fitter.fit(np.concatenate([points, stray]), rot, 1.0, pelvis)
+    assert np.linalg.norm(fit.translation - pelvis) < 0.015  # least squares (no Huber weights): 21 cm
+
+
+def test_too_few_points_or_nan_keep_the_networks_translation_and_reset_forgets_the_shape():
+    rng = np.random.default_rng(1)
+    fitter = SurfaceFitter()
+    points, rot, pelvis = _scan(1.4, 0.75, {}, 0.0, rng)
+    start = pelvis + 0.05
+    for bad in (points[:5], np.full((100, 3), np.nan), np.zeros((0, 3))):
+        fit = fitter.fit(bad, rot, 1.0, start)
+        assert not fit.fitted and np.array_equal(fit.translation, start) and np.isnan(fit.residual_m)
+    nan_rot = rot.copy()
+    nan_rot[3] = np.nan
+    assert not fitter.fit(points, nan_rot, 1.0, start).fitted
+    np.testing.assert_array_equal(fitter.shape, 1.0)
+    fitter.fit(points, rot, 1.0, start)
+    assert fitter.shape[0] > 1.2
+    fitter.reset()
+    np.testing.assert_array_equal(fitter.shape, 1.0)
+
+
+def test_the_shift_is_bounded():
+    rng = np.random.default_rng(2)
+    points, rot, pelvis = _scan(1.0, 1.0, {}, 0.0, rng)
+    config = SurfaceFitConfig(max_shift_m=0.05)
+    fit = SurfaceFitter(config).fit(points, rot, 1.0, pelvis + np.array([0.0, 0.3, 0.0]))
+    assert np.linalg.norm(fit.translation - (pelvis + np.array([0.0, 0.3, 0.0]))) <= 0.05 + 1e-9
