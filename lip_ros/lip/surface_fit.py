@@ -79,10 +79,9 @@ class SurfaceFitter:
         part = [n.removeprefix("left_").removeprefix("right_") for n in self._body.names]
         self._group = np.array([0 if p in TORSO_PARTS else 1 if p in LIMB_PARTS else 2 for p in part])  # girths
         groups = self.config.proportion_groups
-        self._gain = np.ones((len(groups), NUM_JOINTS, 1))  # which offsets each proportion lengthens
+        self._gain = np.zeros((len(groups), NUM_JOINTS, 1))  # 1 on the offsets each bone group's length scales
         for i, group in enumerate(groups):
-            self._gain[i, [self._skeleton.index(j) for j in PROPORTION_GROUPS[group]]] = 0.0
-        self._gain = 1.0 - self._gain  # 1 on the group's offsets
+            self._gain[i, [self._skeleton.index(j) for j in PROPORTION_GROUPS[group]]] = 1.0
         sd = np.array([self.config.girth_prior] * _GIRTHS + [self.config.proportion_prior] * len(groups))
         self._prior = np.diag(1.0 / sd**2)
         self.reset()
