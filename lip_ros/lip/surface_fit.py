@@ -4,7 +4,7 @@ The network's translation is the point mean plus an offset it learned from the t
 performer thicker or thinner than those, or with other proportions, moves the point mean against the pelvis,
 and the offset does not follow. Here the estimated pose is dressed in the capsule body of
 :class:`lip_ros.core.body.BodyModel` (the body scale the network estimated) with the performer's shape (three
-girths and the spine, thigh and shank lengths) and moved, with the shape, until its surface passes through
+girths and the spine's length) and moved, with the shape, until its surface passes through
 the performer's points: a few Gauss-Newton steps, the network's translation a weak prior.
 
 The residual of a point whose ray meets the body is its range error (measured range minus the range at which
@@ -42,7 +42,8 @@ class SurfaceFitConfig:
     #                           the pose puts elsewhere)
     translation_prior_m: float = 0.10  # standard deviation of the network's translation, as a prior
     max_shift_m: float = 0.25  # the fit never moves the translation further than this from the network's
-    proportion_groups: tuple[str, ...] = ("spine", "thigh", "shank")  # bone groups whose lengths are fitted
+    proportion_groups: tuple[str, ...] = ("spine",)  # bone groups whose lengths are fitted (a "+" joins groups of
+    #   ``core.skeleton.PROPORTION_GROUPS`` into one length; the legs' lengths drift with leg-pose errors: docs)
     girth_prior: float = 0.15  # standard deviation of the girths (1 = the contract body) before any data
     proportion_prior: float = 0.1  # standard deviation of the proportions before any data
     shape_range: tuple[float, float] = (0.5, 2.0)  # girths and proportions are kept within this
@@ -81,7 +82,7 @@ class SurfaceFitter:
         groups = self.config.proportion_groups
         self._gain = np.zeros((len(groups), NUM_JOINTS, 1))  # 1 on the offsets each bone group's length scales
         for i, group in enumerate(groups):
-            self._gain[i, [self._skeleton.index(j) for j in PROPORTION_GROUPS[group]]] = 1.0
+            self._gain[i, [self._skeleton.index(j) for g in group.split("+") for j in PROPORTION_GROUPS[g]]] = 1.0
         sd = np.array([self.config.girth_prior] * _GIRTHS + [self.config.proportion_prior] * len(groups))
         self._prior = np.diag(1.0 / sd**2)
         self.reset()

@@ -24,7 +24,7 @@ from lip_ros.resources import params_dir
 WEIGHTS = params_dir() / "weights" / SHIPPED_WEIGHTS
 # Bounds on the posed frames after the calibration poses. The shipped weights of 2026-11-27 (float16
 # lip_small.pt, sha256 e27e2b53...) measured 10.0 mm MPJPE of the published joints on this bag, and with the
-# surface fit 0.62 cm translation error (1.91 cm without it; the held-out set: 0.88 cm, docs/lip/transfer.md);
+# surface fit 0.63 cm translation error (1.91 cm without it; the held-out set: 0.92 cm, docs/lip/transfer.md);
 # the bounds leave 1.3x for retraining.
 MAX_MPJPE_MM = 13.0
 MAX_TRANSLATION_CM = 0.8
