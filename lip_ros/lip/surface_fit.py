@@ -51,6 +51,13 @@ class SurfaceFitConfig:
     min_points: int = 20  # fewer performer points: the network's translation stays
     max_points: int = 600  # more are thinned evenly to this many (time per frame)
 
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.min_points < 1 or self.max_points < self.min_points:
+            raise ValueError(f"need iterations >= 1 and 1 <= min_points <= max_points: {self}")
+        unknown = {g for group in self.proportion_groups for g in group.split("+")} - set(PROPORTION_GROUPS)
+        if unknown:
+            raise ValueError(f"unknown bone groups {sorted(unknown)}; known: {sorted(PROPORTION_GROUPS)}")
+
 
 #: The settings the LIP model uses by default.
 SURFACE_FIT = SurfaceFitConfig()
@@ -66,7 +73,7 @@ class SurfaceFit:
 
     translation: np.ndarray  # (3,) the fitted pelvis position
     shape: np.ndarray  # (3 + G,) the performer's girths and bone lengths after this frame (running estimate)
-    residual_m: float  # median distance of the points to the fitted surface (NaN if not fitted)
+    residual_m: float  # median |residual| of the points at the last Gauss-Newton step (NaN if not fitted)
     fitted: bool  # False: too few points, the translation is the network's
 
 

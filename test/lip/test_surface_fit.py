@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from lip_ros.core.body import BodyModel
 from lip_ros.core.skeleton import forward_kinematics, load_skeleton
-from lip_ros.lip.surface_fit import SurfaceFitConfig, SurfaceFitter
+from lip_ros.lip.surface_fit import SURFACE_FIT, SurfaceFitConfig, SurfaceFitter
 
 _FACING_THE_LIDAR = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # M (x left, y up, z fwd) in L
 
@@ -32,15 +34,21 @@ def _scan(torso: float, limb: float, proportions: dict[str, float], yaw: float, 
     return points, rot, pelvis
 
 
-@pytest.mark.parametrize(("torso", "limb", "proportions"), [
-    (1.0, 1.0, {}),
-    (1.4, 0.75, {}),  # a stocky torso, thin limbs: the point mean moves 5 cm against the pelvis
-    (1.0, 1.0, {"spine": 0.88, "thigh": 1.13, "shank": 1.14}),  # long legs, short back: the pelvis sits higher
-    (1.4, 0.75, {"spine": 1.13, "thigh": 0.87, "shank": 0.87}),
+_LEGS = ("spine", "thigh", "shank")
+
+
+@pytest.mark.parametrize(("torso", "limb", "proportions", "groups"), [
+    (1.0, 1.0, {}, SURFACE_FIT.proportion_groups),
+    (1.4, 0.75, {}, SURFACE_FIT.proportion_groups),  # a stocky torso, thin limbs: the point mean moves 5 cm
+    (1.0, 1.0, {"spine": 0.88}, SURFACE_FIT.proportion_groups),  # a short back: the pelvis sits higher
+    (1.4, 0.75, {"spine": 1.13}, SURFACE_FIT.proportion_groups),
+    # the legs' lengths, when asked for (not by default: they drift with leg-pose errors, docs/lip/transfer.md)
+    (1.0, 1.0, {"spine": 0.88, "thigh": 1.13, "shank": 1.14}, _LEGS),
+    (1.4, 0.75, {"spine": 1.13, "thigh": 0.87, "shank": 0.87}, _LEGS),
 ])
-def test_fit_finds_the_pelvis_and_the_shape_of_a_body_unlike_the_contract(torso, limb, proportions):
+def test_fit_finds_the_pelvis_and_the_shape_of_a_body_unlike_the_contract(torso, limb, proportions, groups):
     rng = np.random.default_rng(7)
-    fitter = SurfaceFitter()
+    fitter = SurfaceFitter(replace(SURFACE_FIT, proportion_groups=groups))
     errors = []
     for k in range(30):
         points, rot, pelvis = _scan(torso, limb, proportions, 0.4 * np.sin(k / 5.0), rng)
@@ -49,7 +57,7 @@ def test_fit_finds_the_pelvis_and_the_shape_of_a_body_unlike_the_contract(torso,
         assert fit.fitted
         errors.append(np.linalg.norm(fit.translation - pelvis))
     assert np.mean(errors[10:]) < 0.01  # once the shape is known: within 1 cm (from 6.7)
-    expected = [torso, limb, 1.0] + [proportions.get(g, 1.0) for g in SurfaceFitConfig().proportion_groups]
+    expected = [torso, limb, 1.0] + [proportions.get(g, 1.0) for g in groups]
     np.testing.assert_allclose(fit.shape[:3], expected[:3], atol=0.04)  # girths
     np.testing.assert_allclose(fit.shape[3:], expected[3:], atol=0.1)  # bone lengths: seen less directly
     assert fit.residual_m < 0.01
@@ -95,6 +103,12 @@ def test_too_few_points_or_nan_keep_the_networks_translation_and_reset_forgets_t
     assert fitter.shape[0] > 1.2
     fitter.reset()
     np.testing.assert_array_equal(fitter.shape, 1.0)
+
+
+def test_bad_settings_are_refused():
+    for bad in ({"iterations": 0}, {"min_points": 0}, {"max_points": 5}, {"proportion_groups": ("neck",)}):
+        with pytest.raises(ValueError):
+            SurfaceFitConfig(**bad)
 
 
 def test_the_shift_is_bounded():
