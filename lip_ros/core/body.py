@@ -22,7 +22,7 @@ import numpy as np
 
 from lip_ros.core.skeleton import Skeleton
 
-__all__ = ["BodyModel", "TORSO_PARTS", "LIMB_PARTS", "capsule_hit"]
+__all__ = ["BodyModel", "TORSO_PARTS", "LIMB_PARTS", "first_hits"]
 
 # The capsule table below is drawn for the contract skeleton (scale 1); it scales with ``skeleton.scale``.
 
@@ -84,7 +84,7 @@ def _sphere_hit(origin: np.ndarray, dirs: np.ndarray, centre: np.ndarray, radius
     return np.where((h >= 0.0) & (t > 0.0), t, np.inf)
 
 
-def capsule_hit(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
+def _capsule_hit(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Entry distance of unit rays (origin (3,), dirs (M, 3)) into capsules (rowwise (M, 3), (M,)), inf if none.
 
     The first hit of a capsule is the nearest of its open cylinder and its two end spheres.
@@ -104,6 +104,24 @@ def capsule_hit(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarr
         side = (h >= 0.0) & (qa > 1e-12 * baba) & (t > 0.0) & (y > 0.0) & (y < baba)
     t_side = np.where(side, t, np.inf)
     return np.minimum(t_side, np.minimum(_sphere_hit(origin, dirs, a, r), _sphere_hit(origin, dirs, b, r)))
+
+
+def first_hits(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Where unit rays from ``origin`` (3,) along ``dirs`` (N, 3) first meet capsules (ends a, b (K, 3), radii
+    r (K,)): the range (N,) (inf where none) and the capsule met (N,) (-1 where none). Only (ray, capsule) pairs
+    whose capsule's bounding sphere the ray passes are tested."""
+    centre = 0.5 * (a + b) - origin
+    reach = 0.5 * np.linalg.norm(b - a, axis=1) + r
+    along = dirs @ centre.T  # (N, K)
+    ray, cap = np.nonzero((np.sum(centre * centre, axis=1) - along * along <= reach * reach) & (along > -reach))
+    t = _capsule_hit(origin, dirs[ray], a[cap], b[cap], r[cap])
+    best = np.full(len(dirs), np.inf)
+    np.minimum.at(best, ray, t)
+    met = np.full(len(dirs), -1)
+    win = np.isfinite(t) & (t == best[ray])
+    met[ray[win]] = cap[win]
+    return best, met
 
 
 @dataclass(frozen=True)
@@ -202,17 +220,10 @@ class BodyModel:
         origin = np.asarray(origin, dtype=np.float64)
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
         n = len(dirs)
-        centre = 0.5 * (caps.a + caps.b) - origin
-        reach = 0.5 * np.linalg.norm(caps.b - caps.a, axis=1) + caps.r
-        along = dirs @ centre.T  # (N, K)
-        near = (np.sum(centre * centre, axis=1) - along * along <= reach * reach) & (along > -reach)
-        ray, cap = np.nonzero(near)
-        t = capsule_hit(origin, dirs[ray], caps.a[cap], caps.b[cap], caps.r[cap])
-        best = np.full(n, np.inf)
-        np.minimum.at(best, ray, t)
-        win = np.isfinite(t) & (t == best[ray])
-        ray, cap, t = ray[win], cap[win], t[win]
-        hit = origin + t[:, None] * dirs[ray]
+        best, met = first_hits(origin, dirs, caps.a, caps.b, caps.r)
+        ray = np.flatnonzero(met >= 0)
+        cap = met[ray]
+        hit = origin + best[ray, None] * dirs[ray]
         normal = hit - _closest_on_segment(hit, caps.a[cap], caps.b[cap])
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         cos_inc = np.zeros(n)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lip_ros.core.body import LIMB_PARTS, TORSO_PARTS, BodyModel, capsule_hit
+from lip_ros.core.body import LIMB_PARTS, TORSO_PARTS, BodyModel, first_hits
 from lip_ros.core.skeleton import NUM_JOINTS, PROPORTION_GROUPS, forward_kinematics, load_skeleton
 
 __all__ = ["SurfaceFitConfig", "SURFACE_FIT", "SurfaceFit", "SurfaceFitter"]
@@ -160,16 +160,15 @@ class SurfaceFitter:
             ab = b0 + np.einsum("g,gkj->kj", change, db) - a
             radius = r0 * shape[self._group]
             # where each ray meets the body (root-relative); rays that miss it: the point itself
-            hit_range = _first_hits(-t, ray, a, a + ab, radius)
-            hit = np.isfinite(hit_range)
+            hit_range, met = first_hits(-t, ray, a, a + ab, radius)
+            hit = met >= 0
             p = np.where(hit[:, None], ray * np.where(hit, hit_range, 0.0)[:, None], points) - t
             s = np.clip(np.einsum("nkj,kj->nk", p[:, None, :] - a[None], ab)
                         / np.maximum(np.einsum("kj,kj->k", ab, ab), 1e-18), 0.0, 1.0)
             diff = p[:, None, :] - (a[None] + s[..., None] * ab[None])
             axis_dist = np.sqrt(np.einsum("nkj,nkj->nk", diff, diff))
-            k = np.argmin(np.abs(axis_dist - radius), axis=1)  # the capsule whose surface the ray met
             miss = ~hit
-            k[miss] = np.argmin(axis_dist[miss] - radius, axis=1)  # the point's distance to the body
+            k = np.where(hit, met, np.argmin(axis_dist - radius, axis=1))  # the capsule met, or the nearest
             dist = axis_dist[rows, k]
             normal = diff[rows, k] / np.maximum(dist, 1e-9)[:, None]
             # hit: the range error, times the cosine of the incidence (along the normal, as the Jacobian below);
@@ -202,18 +201,6 @@ class SurfaceFitter:
         self._info = info + H_ss  # the frame's solution is the new estimate (an information filter's update)
         self._shape = shape
         return SurfaceFit(t, self.shape, float(np.median(np.abs(res))), True)
-
-
-def _first_hits(origin: np.ndarray, rays: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """(N,) range at which each unit ray from ``origin`` first meets the capsules (K ends a, b, radii r); inf
-    where it meets none. Only the capsules whose bounding sphere the ray passes are tested."""
-    centre = 0.5 * (a + b) - origin
-    reach = 0.5 * np.linalg.norm(b - a, axis=1) + r
-    along = rays @ centre.T  # (N, K)
-    ray, cap = np.nonzero(np.sum(centre * centre, axis=1) - along * along <= reach * reach)
-    best = np.full(len(rays), np.inf)
-    np.minimum.at(best, ray, capsule_hit(origin, rays[ray], a[cap], b[cap], r[cap]))
-    return best
 
 
 def _clip_norm(v: np.ndarray, limit: float) -> np.ndarray:
