@@ -20,7 +20,9 @@ A frame is ``OK`` when every sensor is, ``DEGRADED`` when some are only held,
 
 Online, :class:`ImuSynchronizer` keeps a bounded, sorted buffer per sensor
 (out-of-order samples are inserted in place; a repeated stamp keeps the first
-sample; invalid samples are rejected with a reason). A node asks for ``t`` once
+sample; invalid samples are rejected with a reason; a sensor whose stamps step
+back, :mod:`lip_ros.core.clock`, starts its buffer again from the second sample
+of the new time line). A node asks for ``t`` once
 :meth:`ImuSynchronizer.ready` says so: every sensor has a sample at or after
 ``t + settle_ns``, or ``wait_ns`` passed since ``t``. The latency this implies
 is one IMU period (about 17 ms at 60 Hz) plus ``settle_ns`` plus the transport
@@ -31,8 +33,8 @@ bit-for-bit the same results as feeding the samples to an
 :class:`ImuSynchronizer` in the given (arrival) order and querying each time
 once it is ready, provided that no query was forced by ``wait_ns`` while a
 sample it needed was still on its way, that ``settle_ns`` covers the largest
-reordering in transport plus one sample period, and that the buffers did not
-overflow.
+reordering in transport plus one sample period, that the buffers did not
+overflow and that no sensor's clock stepped back.
 """
 
 from __future__ import annotations
@@ -44,6 +46,8 @@ from enum import Enum
 from typing import Protocol
 
 import numpy as np
+
+from lip_ros.core.clock import CLOCK_STEP_NS, stepped_back
 
 __all__ = [
     "SensorStatus",
@@ -370,6 +374,10 @@ class ImuSynchronizer:
         self._latency_ns = dict(zip(self.names, latency))
         self._buffers = {n: _Buffer(self.config.capacity) for n in self.names}
         self.rejected: dict[str, Counter[str]] = {n: Counter() for n in self.names}
+        #: per sensor, how often its stamps stepped back (lip_ros.core.clock): its buffer was emptied each time
+        self.clock_steps: dict[str, int] = dict.fromkeys(self.names, 0)
+        self.last_clock_step_ns = 0  # how far back the latest step went
+        self._behind: dict[str, int | None] = dict.fromkeys(self.names)  # the last sample if far behind the newest
 
     def add(self, name: str, sample: ImuSampleLike) -> str | None:
         """Buffer one sample of sensor ``name``; returns why it was rejected, None if kept."""
@@ -426,10 +434,25 @@ class ImuSynchronizer:
     def insert(self, name: str, stamp_ns: int, row: np.ndarray, code: int) -> str | None:
         """Buffer one sample of sensor ``name`` validated by :meth:`validate` at its measurement time
         (:meth:`measured_ns`); why it was rejected, None if kept."""
+        if code < 0:
+            self._check_step(name, self.measured_ns(name, stamp_ns))
         reason = _REJECTS[code] if code >= 0 else self._buffers[name].insert(self.measured_ns(name, stamp_ns), row)
         if reason is not None:
             self.rejected[name][reason] += 1
         return reason
+
+    def _check_step(self, name: str, measured_ns: int) -> None:
+        """Start the buffer of ``name`` again if its clock stepped back: this sample and the one before it both far
+        behind its newest (:func:`lip_ros.core.clock.stepped_back`), this one after that one. One such sample
+        alone is a late one (inserted in place, or rejected as older than the buffered data)."""
+        step = stepped_back(measured_ns, self.newest_ns(name))
+        before = self._behind[name]
+        self._behind[name] = measured_ns if step else None
+        if step and before is not None and 0 < measured_ns - before <= CLOCK_STEP_NS:
+            self._buffers[name] = _Buffer(self.config.capacity)
+            self._behind[name] = None
+            self.clock_steps[name] += 1
+            self.last_clock_step_ns = step
 
     def newest_ns(self, name: str) -> int | None:
         """Stamp of the newest buffered sample of ``name``."""

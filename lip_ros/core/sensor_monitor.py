@@ -1,8 +1,11 @@
-"""Per-sensor health bookkeeping: rate, staleness, stamp order and rejected messages (ROS-free).
+"""Per-sensor health bookkeeping: rate, staleness, stamp order, clock steps and rejected messages (ROS-free).
 
 Every message a node receives is accounted for here: accepted (counted towards
 the rate) or rejected with a reason. The node turns :meth:`SensorMonitor.report`
-into ``/diagnostics``.
+into ``/diagnostics``. A clock step of the sensor is a stamp more than
+:data:`lip_ros.core.clock.CLOCK_STEP_NS` behind the newest, or that ran that
+much further than the receive clock since the last message; it is reported
+(WARN) for ``window_s`` after.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from collections import Counter, deque
 from dataclasses import dataclass, field
 
 from lip_msgs_py.diagnostics import DiagnosticLevel
+from lip_ros.core.clock import CLOCK_STEP_NS, stepped_back
 
 __all__ = ["SensorReport", "SensorMonitor"]
 
@@ -28,6 +32,7 @@ class SensorReport:
     rejected: dict[str, int]  # since start, by reason
     out_of_order: int
     age_s: float | None  # receive time since the last accepted message
+    clock_steps: int = 0  # how often the stamps stepped back or ran ahead of the receive clock, since start
 
 
 @dataclass
@@ -46,37 +51,54 @@ class SensorMonitor:
     _arrivals: deque[float] = field(default_factory=deque, repr=False)
     _rejected: Counter[str] = field(default_factory=Counter, repr=False)
     _recent_rejects: deque[tuple[float, str]] = field(default_factory=deque, repr=False)
+    _recent_steps: deque[tuple[float, int]] = field(default_factory=deque, repr=False)  # (receive time, signed step)
     _received: int = 0
     _accepted: int = 0
     _out_of_order: int = 0
     _last_stamp_ns: int | None = None
     _last_arrival: float | None = None
+    _clock_steps: int = 0
 
     def accept(self, now_s: float, stamp_ns: int) -> None:
         """Count a valid message with measurement stamp ``stamp_ns`` received at ``now_s``."""
         self._received += 1
         self._accepted += 1
-        if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns:
+        step = -stepped_back(stamp_ns, self._last_stamp_ns)
+        if not step and self._last_stamp_ns is not None and self._last_arrival is not None:
+            ahead = (stamp_ns - self._last_stamp_ns) - round((now_s - self._last_arrival) * 1e9)
+            step = ahead if ahead > CLOCK_STEP_NS else 0  # the stamps ran ahead of the receive clock
+        if step:  # the sensor's clock stepped: its stamps go on from here
+            self._clock_steps += 1
+            self._recent_steps.append((now_s, step))
+        if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns and not step:
             self._out_of_order += 1
         else:
             self._last_stamp_ns = stamp_ns
+        self._trim(now_s)
         self._arrivals.append(now_s)
         self._last_arrival = now_s
-        self._trim(now_s)
 
     def reject(self, now_s: float, reason: str) -> None:
         """Count a message that could not be used, under a short ``reason``."""
         self._received += 1
         self._rejected[reason] += 1
-        self._recent_rejects.append((now_s, reason))
         self._trim(now_s)
+        self._recent_rejects.append((now_s, reason))
 
     def _trim(self, now_s: float) -> None:
+        if self._last_arrival is not None and now_s < self._last_arrival - self.window_s:
+            # the receive clock went back (a bag played again with its /clock): the windows start again
+            self._arrivals.clear()
+            self._recent_rejects = deque(e for e in self._recent_rejects if e[0] <= now_s)
+            self._recent_steps = deque(e for e in self._recent_steps if e[0] <= now_s)
+            self._last_arrival = None
         start = now_s - self.window_s
         while self._arrivals and self._arrivals[0] < start:
             self._arrivals.popleft()
         while self._recent_rejects and self._recent_rejects[0][0] < start:
             self._recent_rejects.popleft()
+        while self._recent_steps and self._recent_steps[0][0] < start:
+            self._recent_steps.popleft()
 
     def rate_hz(self, now_s: float) -> float:
         """Accepted messages per second over the last ``window_s``."""
@@ -95,6 +117,10 @@ class SensorMonitor:
         if recent:
             problems.append(f"rejected in the last {self.window_s:g} s: "
                             + ", ".join(f"{k} x{v}" for k, v in sorted(recent.items())))
+        if self._recent_steps:
+            step = self._recent_steps[-1][1] * 1e-9
+            problems.append(f"stamps stepped {'back' if step < 0 else 'ahead'} {abs(step):.1f} s (a clock step) in "
+                            f"the last {self.window_s:g} s")
         if age is None or age > self.stale_after_s:
             health = DiagnosticLevel.STALE
             message = "no data" if age is None else f"no valid message for {age:.1f} s"
@@ -103,4 +129,4 @@ class SensorMonitor:
         else:
             health, message = DiagnosticLevel.OK, f"{rate:.1f} Hz"
         return SensorReport(self.name, health, message, rate, self._received, self._accepted, rejected,
-                            self._out_of_order, age)
+                            self._out_of_order, age, self._clock_steps)

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from lip_ros.core.clock import stepped_back
 from lip_ros.core.imu_sync import FrameStatus, ImuSampleLike, ImuSynchronizer, SyncConfig, SyncResult
 from lip_ros.core.skeleton import Skeleton, forward_kinematics, load_skeleton
 from lip_ros.lip.calibration import (
@@ -49,13 +50,15 @@ from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.sensors import IMU_NAMES
 
 __all__ = ["Outcome", "BoneFrame", "LipPose", "ImuStage", "PoseStage", "MAX_PENDING_FRAMES", "MAX_POSE_GAP_NS",
-           "CLOCKS_REASON"]
+           "CLOCKS_REASON", "CLOCK_STEP_REASON"]
 
 #: Default of how many frames may wait for IMU data (``ImuStage.max_pending``); older ones are skipped.
 MAX_PENDING_FRAMES = 20
 #: Default of how long without a pose before the network starts a new sequence (``PoseStage.max_gap_ns``).
 MAX_POSE_GAP_NS = 2_000_000_000
 
+#: The start of the reason of a frame skipped because the clock stepped back while it waited.
+CLOCK_STEP_REASON = "clock stepped back"
 #: Why a frame gave up waiting for IMU data (more than ``max_pending`` frames behind it).
 LATE_IMU_REASON = "IMU data did not arrive in time"
 #: The start of the reason of a frame stamped on another clock than the IMU data (``SyncConfig.max_clock_gap_ns``).
@@ -150,6 +153,8 @@ class ImuStage:
         # kept for the calibration, not yet shown to the detector (bounded like the detector's own buffers)
         self._calibration_samples: deque[tuple[str, ImuSampleLike]] = deque()  # (name, sample)
         self._pending: deque[_Waiting] = deque()
+        self._last_pose_ns: int | None = None  # pose time of the newest frame
+        self.clock_steps = 0  # how often the frames' stamps stepped back (lip_ros.core.clock)
         if calibration is None:
             self.start_calibration()
 
@@ -250,9 +255,26 @@ class ImuStage:
     def add_frame(self, frame_stamp_ns: int, pose_stamp_ns: int, points: np.ndarray, tag: Any = None
                   ) -> list[BoneFrame]:
         """Queue a frame with the performer's points (N, 3) in L; frames that cannot wait any longer come back now."""
+        done = self._clock_stepped(pose_stamp_ns)
         if self._detector is not None:
             self._detector.add_cloud(pose_stamp_ns, points if self.level is None else points @ self.level)
-        return self._enqueue(_Waiting(frame_stamp_ns, pose_stamp_ns, points, "", tag))
+        return done + self._enqueue(_Waiting(frame_stamp_ns, pose_stamp_ns, points, "", tag))
+
+    def _clock_stepped(self, pose_stamp_ns: int) -> list[BoneFrame]:
+        """If the frames' clock stepped back (:mod:`lip_ros.core.clock`): the frames waiting on the old time line,
+        skipped, and a calibration being looked for started again (a solved one stays); else nothing."""
+        step = stepped_back(pose_stamp_ns, self._last_pose_ns)
+        self._last_pose_ns = pose_stamp_ns
+        if not step:
+            return []
+        self.clock_steps += 1
+        reason = f"{CLOCK_STEP_REASON} {step * 1e-9:.1f} s: the frame waited on the old time line"
+        done = [BoneFrame(w.frame_stamp_ns, w.pose_stamp_ns, Outcome.SKIPPED, reason if w.pose_stamp_ns else w.reason,
+                          w.points, tag=w.tag) for w in self._pending]
+        self._pending.clear()
+        if self._detector is not None:
+            self.start_calibration()
+        return done
 
     def add_unusable(self, frame_stamp_ns: int, reason: str, tag: Any = None) -> list[BoneFrame]:
         """Queue a frame without a performer, so that it comes out (SKIPPED) in order with the others."""
@@ -390,8 +412,9 @@ class PoseStage:
     """The streaming LIP network and forward kinematics: one frame's points and bones in, its pose out.
 
     After more than ``max_gap_ns`` without a pose (a calibration reset, the
-    performer lost, IMUs missing) the network starts a new sequence: its
-    recurrent state would describe a body long gone.
+    performer lost, IMUs missing), or when the stamps go back (a clock step),
+    the network starts a new sequence: its recurrent state would describe a body
+    long gone.
     """
 
     def __init__(self, model: LipModel, skeleton: Skeleton | None = None, max_gap_ns: int = MAX_POSE_GAP_NS) -> None:
@@ -419,7 +442,7 @@ class PoseStage:
         new = set()  # frames that start a new sequence
         last = self._last_ns
         for k, stamp_ns in enumerate(stamps_ns):
-            if last is None or stamp_ns - last > self.max_gap_ns:
+            if last is None or not 0 < stamp_ns - last <= self.max_gap_ns:  # a gap, or the clock stepped back
                 new.add(k)
             last = stamp_ns
         level = self.level

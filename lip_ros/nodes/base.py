@@ -19,6 +19,7 @@ once; other values (pending, latency) are named otherwise.
 from __future__ import annotations
 
 import gc
+import re
 import sys
 import threading
 from collections import Counter, deque
@@ -54,8 +55,11 @@ from lip_ros.resources import params_path
 
 __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "non_negative", "numbers", "GraphNode",
            "LatencyWindow", "RELIABLE", "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input", "LATCHED",
-           "node_defaults", "check_params_files", "run_nodes", "FrameArrivals", "tf_publisher"]
+           "node_defaults", "check_params_files", "run_nodes", "FrameArrivals", "tf_publisher", "rejection_reason",
+           "SKIPPED"]
 
+#: How ``GraphNode.count_frame`` names a frame that ended without a pose.
+SKIPPED = "skipped"
 #: QoS of the graph's outputs.
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 #: Reliable and transient local: a late subscriber gets the last message (a state, not a stream).
@@ -262,6 +266,7 @@ class GraphNode(Node):
         #: All of this node's callbacks, one at a time (its stage objects are not thread-safe), whatever executor.
         self.group = MutuallyExclusiveCallbackGroup()
         self.frames: Counter[str] = Counter()  # "frames <what>" of the diagnostics, without the prefix
+        self._reported: Counter[str] = Counter()  # self.frames at the last report
         self._inputs: dict[str, tuple[str, type, SensorMonitor]] = {}
         self._takers: dict[str, tuple[Subscription, Callable[[Any], None]]] = {}  # by input name
         self._polled: list[str] = []  # the inputs no executor waits on (:meth:`take_polled`)
@@ -318,7 +323,7 @@ class GraphNode(Node):
             try:
                 monitor.accept(now, handle(msg))
             except MalformedMessageError as exc:
-                monitor.reject(now, str(exc).split(":")[0][:60])
+                monitor.reject(now, rejection_reason(exc))
                 self.get_logger().warning(f"{name} ({topic}): message skipped: {exc}", throttle_duration_sec=5.0)
 
         if polled and qos.reliability != ReliabilityPolicy.BEST_EFFORT:
@@ -351,7 +356,8 @@ class GraphNode(Node):
             taken += 1
 
     def count_frame(self, what: str, detail: str = "") -> None:
-        """Account for a LiDAR frame that ends here (``frames <what>`` on /diagnostics); log why if skipped."""
+        """Account for a LiDAR frame that ends here (``frames <what>`` on /diagnostics; ``what`` starts with
+        :data:`SKIPPED` for a frame without a pose: the status is a WARN in the report after); log why."""
         self.frames[what] += 1
         if detail:
             self.get_logger().info(f"frame {what}: {detail}", throttle_duration_sec=2.0)
@@ -377,15 +383,29 @@ class GraphNode(Node):
         for topic, _, monitor in self._inputs.values():
             r = monitor.report(now * 1e-9)
             values = {"rate_hz": f"{r.rate_hz:.2f}", "received": r.received, "accepted": r.accepted,
-                      "out_of_order": r.out_of_order, "age_s": "none" if r.age_s is None else f"{r.age_s:.3f}"}
+                      "out_of_order": r.out_of_order, "clock_steps": r.clock_steps,
+                      "age_s": "none" if r.age_s is None else f"{r.age_s:.3f}"}
             values.update({f"rejected: {k}": v for k, v in r.rejected.items()})
             statuses.append(diagnostic_status_to_msg(self.backend, int(r.health), f"{self.get_name()}: {r.name}",
                                                      r.message, hardware_id=topic, values=values))
         level, message, extra = self.frame_status()
+        skipped = {k: v - self._reported[k] for k, v in self.frames.items()
+                   if k.startswith(SKIPPED) and v > self._reported[k]}
+        self._reported = Counter(self.frames)
+        if skipped:  # a fault shorter than the report period is still seen on /diagnostics
+            level = max(level, DiagnosticLevel.WARN)
+            message = "; ".join(filter(None, [message, "since the last report " + ", ".join(
+                f"{k} x{v}" for k, v in sorted(skipped.items()))]))
         values = {**{f"frames {k}": v for k, v in sorted(self.frames.items())}, **extra}
         statuses.append(diagnostic_status_to_msg(self.backend, int(level), f"{self.get_name()}: frames", message,
                                                  values=values))
         self._diag_pub.publish(diagnostic_array_to_msg(self.backend, now, statuses))
+
+
+def rejection_reason(exc: Exception) -> str:
+    """A message's rejection as a short reason to count it under: its error without numbers or lists (so that one
+    kind of fault is one reason, however its values vary)."""
+    return re.sub(r"\[[^]]*\]|(?<![\w.])-?\d+(\.\d+)?", "N", str(exc))[:80]
 
 
 def tf_publisher(node: Node) -> Any:

@@ -333,6 +333,28 @@ class _Watch:
         return max(self.last_clock, self.last_pose or 0.0) - self.started
 
 
+def _stop(procs: list[subprocess.Popen]) -> list[str]:
+    """Stop the processes in reverse order of start (the player if still running, the recorder, the node) with
+    SIGINT, as a user's Ctrl-C would; each that did not end with status 0 (an abort at exit, a crash, a hang: killed
+    after 30 s), said in a few words."""
+    failed = []
+    for proc in reversed(procs):
+        name = Path(str(proc.args[0])).name
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        try:
+            rc = proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            rc = proc.wait()
+            failed.append(f"{name} did not stop within 30 s of SIGINT (killed)")
+            continue
+        if rc != 0:
+            what = f"signal {signal.Signals(-rc).name}" if rc < 0 else f"exit status {rc}"
+            failed.append(f"{name} ended with {what}")
+    return failed
+
+
 def _start_calibration(out: Path, given: Path | None) -> None:
     """Prepare the graph's calibration file ``out``: refuse one left by an earlier run; copy ``given`` there."""
     if out.exists():
@@ -404,10 +426,10 @@ def _run(argv: list[str]) -> int:
         watch.spin_while(lambda: not settled() and node.poll() is None, _SETTLE_WAIT_S)
         time.sleep(1.0)  # one more diagnostics period reaches the recorder
     finally:
-        for proc in reversed(procs):  # the player if still running, the recorder, the node
-            proc.send_signal(signal.SIGINT)
-            proc.wait(timeout=30)
+        failed = _stop(procs)
         watch.node.destroy_node()
+    if failed:
+        raise ToolError("not shut down cleanly: " + "; ".join(failed))
     refinement = "" if refined is None else _refine(args.inputs, refined)
     summary = summarize_outputs(args.inputs, args.outputs, branch, refined if refined and refined.exists() else None)
     summary.refinement = refinement

@@ -4,6 +4,7 @@
   lip_rig inspect DIR [--plot PNG]
   lip_rig site --seed 3 [--walk 90] [--plot PNG]     (a scene with height of the HSC4D rig, a walk through it)
   lip_rig site-bag --seed 3 --seconds 90 --out DIR   (an HSC4D capture: hip LiDAR, suit, its odometry)
+  lip_rig faults IN OUT --fault imu_silent 6 3 [--fault ...]   (IN rewritten with faults: kind, start s, seconds)
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import time
 from pathlib import Path
 
 from lip_ros.rig.capture import SENSORS, CaptureConfig, CaptureSession
+from lip_ros.rig.faults import FAULT_KINDS, FaultSpec, write_faulty_bag
 from lip_ros.rig.motion import SCENARIOS
 from lip_ros.rig.site_capture import SiteCaptureConfig
 
@@ -90,6 +92,15 @@ def _site_bag(args: argparse.Namespace) -> int:
     return 0
 
 
+def _faults(args: argparse.Namespace) -> int:
+    specs = [FaultSpec(kind, float(start), float(seconds)) for kind, start, seconds in args.fault]
+    for w in write_faulty_bag(args.bag, args.out, specs, seed=args.seed):
+        print(f"{w.kind}: stamps {w.start_ns} .. {w.end_ns} ({(w.end_ns - w.start_ns) * 1e-9:.2f} s): "
+              f"{w.description}")
+    print(f"wrote {args.out}")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     """The command-line interface."""
     p = argparse.ArgumentParser(prog="lip_rig", description="Synthetic LiDAR + IMU capture rig of lip_ros.")
@@ -150,6 +161,15 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--out", type=Path, required=True, help="bag directory to create")
     b.add_argument("--quiet", action="store_true", help="no progress output")
     b.set_defaults(func=_site_bag)
+    f = sub.add_parser("faults", help="rewrite a bag with sensor faults in given windows (deterministic)",
+                       epilog="fault kinds: " + "; ".join(f"{k}: {v}" for k, v in FAULT_KINDS.items()))
+    f.add_argument("bag", type=Path, help="the bag to rewrite")
+    f.add_argument("out", type=Path, help="bag directory to create (with faults.yaml: the windows on the sensors' "
+                                          "clock)")
+    f.add_argument("--fault", nargs=3, action="append", required=True, metavar=("KIND", "START_S", "SECONDS"),
+                   help="a fault from START_S (receive time from the bag's first message) for SECONDS; repeatable")
+    f.add_argument("--seed", type=int, default=0, help="for the faults drawn at random (lidar_drops)")
+    f.set_defaults(func=_faults)
     return p
 
 
@@ -158,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"lip_rig: {exc}", file=sys.stderr)
         return 2
 

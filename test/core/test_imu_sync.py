@@ -246,3 +246,22 @@ def test_latency_is_taken_off_each_sensors_stamps():
         ImuSynchronizer(names, SyncConfig(latency_ns=(MS,)))
     with pytest.raises(ValueError, match="invalid"):
         SyncConfig(latency_ns=(MS, -MS))
+
+
+def test_a_clock_step_back_starts_the_sensors_buffer_again():
+    """Stamps 5 s back (a bag played again, a PTP step): the buffer of the old time line is let go at the second
+    sample of the new one, which interpolates at once; one late sample alone is no step."""
+    rng = np.random.default_rng(4)
+    stamps = jittered(60.0, 2.0, rng)
+    old, new = series(stamps, 2.0), series(stamps - 5000 * MS, 2.0)
+    sync = ImuSynchronizer(["s"])
+    for sample in samples(old):
+        assert sync.add("s", sample) is None
+    assert sync.add("s", samples(old)[0]) == "duplicate stamp"  # late alone, then on the old time line again
+    assert sync.add("s", samples(old)[-1]) == "duplicate stamp" and sync.clock_steps["s"] == 0
+    for sample in samples(new):
+        assert sync.add("s", sample) is None
+    assert sync.clock_steps["s"] == 1 and sync.last_clock_step_ns >= 5000 * MS - 20 * MS
+    assert sync.span_ns() == (int(new.stamp_ns[1]), int(new.stamp_ns[-1]))  # nothing of the old time line left
+    t = np.sort(rng.integers(new.stamp_ns[0], new.stamp_ns[-1], 20))
+    check_analytic([sync.query(int(x)) for x in t], {"s": 2.0})

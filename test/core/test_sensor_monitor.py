@@ -59,3 +59,30 @@ def test_out_of_order_stamps_counted() -> None:
     m.accept(0.2, 100)
     m.accept(0.3, 110)
     assert m.report(0.3).out_of_order == 2
+
+
+def test_a_clock_step_is_a_warning_while_it_is_recent_and_not_out_of_order() -> None:
+    """Stamps 5 s back, then (a PTP step) 5 s ahead of the receive clock: each a WARN naming it for the window,
+    counted, never counted out of order; a true gap (receive clock and stamps both move on) is no step."""
+    m = SensorMonitor("lidar", 10.0, stale_after_s=1.0)
+    t = feed(m, 0.0, 3.0, 10.0, stamp0=100 * 10**9)
+    m.accept(t, 95 * 10**9 + int(t * 1e9))  # 5 s back
+    r = m.report(t + 0.1)
+    assert r.health == DiagnosticLevel.WARN and "stamps stepped back 4.9 s" in r.message  # behind the newest
+    assert r.clock_steps == 1 and r.out_of_order == 0
+    t = feed(m, t + 0.1, t + 3.0, 10.0, stamp0=95 * 10**9)
+    assert m.report(t).health == DiagnosticLevel.OK and m.report(t).out_of_order == 0
+    m.accept(t, 100 * 10**9 + int(t * 1e9))  # 5 s ahead of the receive clock
+    assert "stamps stepped ahead 5.0 s" in m.report(t).message and m.report(t).clock_steps == 2
+    t = feed(m, t + 0.1, t + 3.0, 10.0, stamp0=100 * 10**9)
+    t = feed(m, t + 5.0, t + 6.0, 10.0, stamp0=100 * 10**9)  # 5 s without data: a gap, not a step
+    assert m.report(t).health == DiagnosticLevel.OK and m.report(t).clock_steps == 2
+
+
+def test_the_receive_clock_going_back_starts_the_rate_window_again() -> None:
+    """A bag played again rewinds /clock: the rate is the new time line's, not both time lines' together."""
+    m = SensorMonitor("imu", 60.0)
+    feed(m, 100.0, 103.0, 60.0)
+    t = feed(m, 10.0, 12.0, 60.0, stamp0=10**12)  # new stamps go on forward: no stamp step
+    r = m.report(t)
+    assert r.rate_hz == pytest.approx(60.0, abs=1.0) and r.health == DiagnosticLevel.OK and r.age_s < 0.1

@@ -20,6 +20,7 @@ from lip_ros.lip.nets.lip_model import SHIPPED_WEIGHTS, LipModel
 from lip_ros.lip.pipeline import FrameResult, LipPipeline, Outcome, PipelineConfig
 from lip_ros.lip.sensors import IMU_TOPICS, LIDAR_TOPIC
 from lip_ros.resources import params_dir
+from lip_ros.rig.faults import FaultSpec, write_faulty_bag
 
 WEIGHTS = params_dir() / "weights" / SHIPPED_WEIGHTS
 # Bounds on the posed frames after the calibration poses. The shipped weights of 2026-11-27 (float16
@@ -167,3 +168,24 @@ def test_bad_clouds_and_imu_samples_are_accounted_for(model, replayed, tmp_path)
                                  gyro=np.zeros(3), accel=np.array([0.0, 0.0, 9.8]))
     assert pipeline.add_imu("right_ankle", nan_sample) == "orientation not finite"
     assert pipeline.imu_rejections["right_ankle", "orientation not finite"] == 1
+
+
+@pytest.mark.parametrize("kind", ["clock_back", "clock_forward"])
+def test_a_clock_step_keeps_the_calibration_and_the_poses_resume_at_once(model, replayed, tmp_path, kind):
+    """Every stamp 5 s back (a bag looped, a PTP step) or ahead from 7 s on, after the calibration: no frame is
+    lost, the calibration is kept, the network starts a new sequence, and the poses are as good as before."""
+    bag = tmp_path / kind
+    write_faulty_bag(DEMO_BAG, bag, [FaultSpec(kind, 7.0, 100.0)])
+    pipeline = LipPipeline(model)
+    results = list(replay_bag(pipeline, bag))
+    clean = replayed[1]
+    assert len(results) == len(clean)
+    assert [r.outcome for r in results] == [r.outcome for r in clean]
+    assert pipeline.imu.calibration_count == 1 and pipeline.poser.sequences == 2
+    step = int(np.sign(np.diff([r.frame_stamp_ns for r in results])).min() < 0)
+    assert step == (kind == "clock_back") and pipeline.imu.clock_steps == step
+    shift = [a.pose.stamp_ns - b.pose.stamp_ns for a, b in zip(results, clean) if a.pose is not None]
+    assert set(shift) == {0, 5_000_000_000 * (-1 if kind == "clock_back" else 1)}
+    err = [np.linalg.norm(a.pose.joint_pos - b.pose.joint_pos, axis=-1).mean()
+           for a, b in zip(results, clean) if a.pose is not None and a.pose.stamp_ns != b.pose.stamp_ns]
+    assert np.mean(err) < 0.01  # m: the same poses but for the new sequence's first frames

@@ -62,6 +62,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from lip_ros.core.clock import stepped_back
 from lip_ros.core.frames import level_rotation
 from lip_ros.core.ground_plane import GroundPlane, fit_ground_plane
 from lip_ros.core.scan_layout import ScanLayout, destagger, fit_scan_layout
@@ -74,6 +75,8 @@ __all__ = ["LOCK_RULES", "SegmentationConfig", "SegmentationStatus", "Segmentati
 #: Lock rules of :class:`SegmentationConfig` (see the module docstring).
 LOCK_RULES = ("t_pose", "still")
 _REQUIRED_FIELDS = ("x", "y", "z", "t", "range")
+#: the longest frame interval a moved time line assumes between the last frame and the one after a clock step
+_PERIOD_NS = 100_000_000
 
 
 @dataclass(frozen=True)
@@ -166,6 +169,7 @@ class SegmentationResult:
     points: np.ndarray  # (N, 3) float32 xyz in the cloud's frame, in the order of the mask's pixels (row-major)
     t_ns: np.ndarray  # (N,) uint32, ns after stamp_ns
     position: np.ndarray | None  # (2,) tracked xy of the performer (the prediction when not seen), None before the lock
+    clock_step_ns: int = 0  # > 0: the frame's stamp stepped this far back (lip_ros.core.clock); the time line moved
 
     @property
     def mean_t_ns(self) -> int | None:
@@ -226,6 +230,7 @@ class PerformerSegmenter:
         self.performer: Track | None = None
         self._others: list[Track] = []
         self._last_stamp_ns: int | None = None
+        self._period_ns = _PERIOD_NS  # the last interval between two frames (at most _PERIOD_NS)
 
     @property
     def level(self) -> np.ndarray | None:
@@ -260,16 +265,32 @@ class PerformerSegmenter:
         """Segment one organized frame (H, W) with fields x, y, z, t, range, stamped ``stamp_ns`` (int ns)."""
         shape = points.shape if isinstance(points, np.ndarray) and points.ndim == 2 else (0, 0)
         stamp = int(stamp_ns) if isinstance(stamp_ns, (int, np.integer)) and not isinstance(stamp_ns, bool) else 0
+        if isinstance(points, np.ndarray) and points.size == 0:
+            return self._empty(SegmentationStatus.EMPTY_FRAME, f"frame of shape {points.shape} has no points",
+                               stamp, shape)
+        step = stepped_back(stamp, self._last_stamp_ns) if stamp else 0
+        if step:
+            self._shift_time(stamp - self._last_stamp_ns)
         problem = self._malformed(points, stamp_ns)
-        if problem:
-            return self._empty(SegmentationStatus.MALFORMED, problem, stamp, shape)
-        if points.size == 0:
-            return self._empty(SegmentationStatus.EMPTY_FRAME, f"frame of shape {shape} has no points", stamp, shape)
+        result = (self._empty(SegmentationStatus.MALFORMED, problem, stamp, shape) if problem
+                  else self._process(points, stamp, shape))
+        return replace(result, clock_step_ns=step) if step else result
+
+    def _process(self, points: np.ndarray, stamp: int, shape: tuple[int, ...]) -> SegmentationResult:
+        """Segment a well-formed frame."""
         if self.layout is None:
             self._fit_layout(points)
         if self._row_shift is not None:  # a staggered cloud: its rows lined up, and the result put back
             return self._restaggered(self._segment(destagger(points, self._row_shift), stamp, shape))
         return self._segment(points, stamp, shape)
+
+    def _shift_time(self, delta_ns: int) -> None:
+        """The clock stepped by ``delta_ns``: every stamp remembered moves with it, as if the frame came one frame
+        after the last (the scene, the ground and the tracks stay; only their time line moves)."""
+        delta_ns -= self._period_ns
+        self._last_stamp_ns += delta_ns
+        for track in ([self.performer] if self.performer is not None else []) + self._others:
+            track.seen_ns += delta_ns
 
     def _fit_layout(self, points: np.ndarray) -> None:
         """Where the rows and columns look, and (a staggered cloud) how far each row must roll to line up."""
@@ -309,6 +330,8 @@ class PerformerSegmenter:
         else:
             result = self._track(frame, stamp)
         self.background.update(frame.range_m, result.mask)
+        if self._last_stamp_ns is not None:
+            self._period_ns = min(stamp - self._last_stamp_ns, _PERIOD_NS)
         self._last_stamp_ns = stamp
         return result
 

@@ -126,6 +126,7 @@ class CalibrationNode(GraphNode):
         self._state_pub = self.create_publisher(String, p["calibration_topic"], LATCHED)
         self._published_state: tuple[int, bool] | None = None
         self._held = 0  # frames published with a held (not interpolated) sample of some DOT
+        self._clock_steps = 0  # clock steps of the frames and the DOTs logged so far
         self._last_sync = "no frame yet"
         for name, topic in zip(IMU_NAMES, p["imu_topics"]):
             self.add_input(name, topic, Imu, p["imu_rate_hz"], lambda msg, name=name: self._on_imu(name, msg),
@@ -180,6 +181,12 @@ class CalibrationNode(GraphNode):
                 self._last_sync = f.reason
                 if f.reason.startswith(CLOCKS_REASON):
                     self.get_logger().error(f.reason, throttle_duration_sec=5.0)
+        steps = self.stage.clock_steps + sum(self.stage.sync.clock_steps.values())
+        if steps > self._clock_steps:
+            self._clock_steps = steps
+            self.get_logger().warning(f"stamps stepped back (a clock step, or a bag played again): DOT buffers and "
+                                      f"waiting frames started again, the calibration kept; steps so far: "
+                                      f"frames {self.stage.clock_steps}, DOTs {self.stage.sync.clock_steps}")
         if frames:
             self._publish_state()
             self._log_latency()
@@ -259,7 +266,8 @@ class CalibrationNode(GraphNode):
                                           DOT_LATENCY_VALUE: self.stage.latency_status,
                                           "DOT headings": "unknown" if self.stage.calibration is None
                                           else self.stage.calibration.headings,
-                                          "last sync": self._last_sync, **self._latency.values("latency_ms")}
+                                          "last sync": self._last_sync, "clock steps": self._clock_steps,
+                                          **self._latency.values("latency_ms")}
 
 
 def main(argv: list[str] | None = None) -> int:

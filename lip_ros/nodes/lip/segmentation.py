@@ -92,10 +92,14 @@ class SegmentationNode(GraphNode):
         stamp_ns, frame_id = read_header(msg)
         try:
             points = cloud_to_array(msg)
-        except MalformedMessageError:
+        except MalformedMessageError as exc:
+            self._last_status = f"malformed cloud: {exc}"
             self.count_frame("skipped: malformed cloud")
             raise
         seg = self._segmenter.process(points, stamp_ns)
+        if seg.clock_step_ns:
+            self.get_logger().warning(f"the LiDAR's stamps stepped back {seg.clock_step_ns * 1e-9:.1f} s (a clock "
+                                      "step, or a bag played again): tracking goes on from this frame")
         ground = self._segmenter.ground
         if ground is not None and not self._ground_sent:  # before the first performer cloud it levels
             self._ground_pub.publish(ground_message(self.backend, stamp_ns, frame_id, ground))
