@@ -11,12 +11,19 @@ much further than the receive clock since the last message; it is reported
 from __future__ import annotations
 
 from collections import Counter, deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from lip_msgs_py.diagnostics import DiagnosticLevel
 from lip_ros.core.clock import CLOCK_STEP_NS, stepped_back
 
-__all__ = ["SensorReport", "SensorMonitor"]
+__all__ = ["SensorReport", "SensorMonitor", "odd_delays"]
+
+#: how many of the latest messages the delay is the median of (a tenth of a second of 60 Hz IMU data, a second of
+#: 10 Hz LiDAR frames)
+_DELAY_MESSAGES = 9
 
 
 @dataclass(frozen=True)
@@ -33,6 +40,8 @@ class SensorReport:
     out_of_order: int
     age_s: float | None  # receive time since the last accepted message
     clock_steps: int = 0  # how often the stamps stepped back or ran ahead of the receive clock, since start
+    delay_s: float | None = None  # median receive time less stamp of the latest messages (SensorMonitor.delay_s)
+    missing: int = 0  # messages missing from gaps in the stamps, since start (with count_missing)
 
 
 @dataclass
@@ -48,10 +57,16 @@ class SensorMonitor:
     expected_rate_hz: float
     stale_after_s: float = 1.0
     window_s: float = 2.0
+    max_delay_s: float | None = None  # messages arriving later than this after their stamps (median): WARN
+    count_missing: bool = False  # count messages missing from gaps in the stamps (a sensor stamping each period)
     _arrivals: deque[float] = field(default_factory=deque, repr=False)
+    # receive time - stamp (s) of the latest messages
+    _delays: deque[float] = field(default_factory=lambda: deque(maxlen=_DELAY_MESSAGES), repr=False)
     _rejected: Counter[str] = field(default_factory=Counter, repr=False)
     _recent_rejects: deque[tuple[float, str]] = field(default_factory=deque, repr=False)
     _recent_steps: deque[tuple[float, int]] = field(default_factory=deque, repr=False)  # (receive time, signed step)
+    _recent_missing: deque[tuple[float, int]] = field(default_factory=deque, repr=False)  # (receive time, missing)
+    _missing: int = 0
     _received: int = 0
     _accepted: int = 0
     _out_of_order: int = 0
@@ -70,12 +85,18 @@ class SensorMonitor:
         if step:  # the sensor's clock stepped: its stamps go on from here
             self._clock_steps += 1
             self._recent_steps.append((now_s, step))
+        elif self.count_missing and self._last_stamp_ns is not None and stamp_ns > self._last_stamp_ns:
+            missing = round((stamp_ns - self._last_stamp_ns) * 1e-9 * self.expected_rate_hz) - 1
+            if missing > 0:
+                self._missing += missing
+                self._recent_missing.append((now_s, missing))
         if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns and not step:
             self._out_of_order += 1
         else:
             self._last_stamp_ns = stamp_ns
         self._trim(now_s)
         self._arrivals.append(now_s)
+        self._delays.append(now_s - stamp_ns * 1e-9)
         self._last_arrival = now_s
 
     def reject(self, now_s: float, reason: str) -> None:
@@ -89,8 +110,10 @@ class SensorMonitor:
         if self._last_arrival is not None and now_s < self._last_arrival - self.window_s:
             # the receive clock went back (a bag played again with its /clock): the windows start again
             self._arrivals.clear()
+            self._delays.clear()
             self._recent_rejects = deque(e for e in self._recent_rejects if e[0] <= now_s)
             self._recent_steps = deque(e for e in self._recent_steps if e[0] <= now_s)
+            self._recent_missing = deque(e for e in self._recent_missing if e[0] <= now_s)
             self._last_arrival = None
         start = now_s - self.window_s
         while self._arrivals and self._arrivals[0] < start:
@@ -99,15 +122,23 @@ class SensorMonitor:
             self._recent_rejects.popleft()
         while self._recent_steps and self._recent_steps[0][0] < start:
             self._recent_steps.popleft()
+        while self._recent_missing and self._recent_missing[0][0] < start:
+            self._recent_missing.popleft()
 
     def rate_hz(self, now_s: float) -> float:
         """Accepted messages per second over the last ``window_s``."""
         self._trim(now_s)
         return len(self._arrivals) / self.window_s
 
+    def delay_s(self) -> float | None:
+        """Median of receive time less stamp over the latest messages (None without any): transport and driver
+        delay, plus any offset between the sensor's clock and the receive clock."""
+        return float(np.median(self._delays)) if self._delays else None
+
     def report(self, now_s: float) -> SensorReport:
         """The sensor's health now."""
         rate = self.rate_hz(now_s)
+        delay = self.delay_s()
         age = None if self._last_arrival is None else now_s - self._last_arrival
         rejected = dict(self._rejected)
         problems = []
@@ -117,6 +148,12 @@ class SensorMonitor:
         if recent:
             problems.append(f"rejected in the last {self.window_s:g} s: "
                             + ", ".join(f"{k} x{v}" for k, v in sorted(recent.items())))
+        if self._recent_missing:
+            problems.append(f"{sum(n for _, n in self._recent_missing)} missing (gaps in the accepted stamps) in "
+                            f"the last {self.window_s:g} s")
+        if delay is not None and self.max_delay_s is not None and delay > self.max_delay_s:
+            problems.append(f"arriving {1e3 * delay:.0f} ms after their stamps (more than "
+                            f"{1e3 * self.max_delay_s:.0f} ms)")
         if self._recent_steps:
             step = self._recent_steps[-1][1] * 1e-9
             problems.append(f"stamps stepped {'back' if step < 0 else 'ahead'} {abs(step):.1f} s (a clock step) in "
@@ -129,4 +166,15 @@ class SensorMonitor:
         else:
             health, message = DiagnosticLevel.OK, f"{rate:.1f} Hz"
         return SensorReport(self.name, health, message, rate, self._received, self._accepted, rejected,
-                            self._out_of_order, age, self._clock_steps)
+                            self._out_of_order, age, self._clock_steps, delay, self._missing)
+
+
+def odd_delays(delays: Mapping[str, float | None], tolerance_s: float) -> dict[str, float]:
+    """Of sensors that should be stamped alike (e.g. on arrival at one host), those whose delay
+    (:meth:`SensorMonitor.delay_s`) differs from the median of all by more than ``tolerance_s``: name -> how much
+    (s; negative: stamped ahead of the others). Needs three sensors with a delay."""
+    known = {n: d for n, d in delays.items() if d is not None}
+    if len(known) < 3:
+        return {}
+    middle = float(np.median(list(known.values())))
+    return {n: d - middle for n, d in known.items() if abs(d - middle) > tolerance_s}

@@ -256,6 +256,8 @@ class GraphNode(Node):
         "diagnostics_period_s": Param("period of /diagnostics (steady time)", positive),
         "stale_after_s": Param("an input with no message for this long is reported stale", positive),
         "lidar_rate_hz": Param("expected LiDAR frame rate", positive),
+        "max_input_delay_s": Param("a sensor input whose messages arrive this much later than their stamps (a "
+                                   "LiDAR: beyond its sweep time) is reported late", positive),
     }
     PARAMS: dict[str, Param] = {}
 
@@ -267,6 +269,7 @@ class GraphNode(Node):
         self.group = MutuallyExclusiveCallbackGroup()
         self.frames: Counter[str] = Counter()  # "frames <what>" of the diagnostics, without the prefix
         self._reported: Counter[str] = Counter()  # self.frames at the last report
+        self._last_skip = ""  # why the latest skipped frame was skipped, in detail
         self._inputs: dict[str, tuple[str, type, SensorMonitor]] = {}
         self._takers: dict[str, tuple[Subscription, Callable[[Any], None]]] = {}  # by input name
         self._polled: list[str] = []  # the inputs no executor waits on (:meth:`take_polled`)
@@ -307,15 +310,21 @@ class GraphNode(Node):
         return self.get_clock().now().nanoseconds
 
     def add_input(self, name: str, topic: str, msg_type: type, rate_hz: float, handle: Callable[[Any], int],
-                  qos: QoSProfile = qos_profile_sensor_data, raw: bool = False, polled: bool = False) -> None:
+                  qos: QoSProfile = qos_profile_sensor_data, raw: bool = False, polled: bool = False,
+                  stamped_at: float | None = None, count_missing: bool = False) -> None:
         """Subscribe ``handle`` (returns the message stamp, raises MalformedMessageError to reject) with a
         monitor of the input's rate, age and rejections on /diagnostics; with ``raw`` it gets the message's CDR
         bytes (a fast input decoded later, in batches). A ``polled`` input is not waited on by the executor: the
         node takes its messages itself with :meth:`take_polled` (from a timer, or when it needs them), so that
         a fast input of small messages costs no executor wake-up each (the HSC4D body node's 17 suit IMUs at
         100 Hz: half its CPU went to rclpy rebuilding its wait set); its queue must hold what comes between two
-        takes."""
-        monitor = SensorMonitor(name, expected_rate_hz=rate_hz, stale_after_s=self.params["stale_after_s"])
+        takes. ``stamped_at``: how long (s) a sensor's message normally takes from its stamp to its
+        publication (0 for an IMU, a LiDAR's sweep time); with it, messages arriving ``max_input_delay_s`` later
+        than that are reported late (None: not checked, e.g. an input from another node). ``count_missing``: the
+        sensor stamps each message one period after the last (a LiDAR), so gaps in the stamps are lost messages."""
+        max_delay = None if stamped_at is None else stamped_at + self.params["max_input_delay_s"]
+        monitor = SensorMonitor(name, expected_rate_hz=rate_hz, stale_after_s=self.params["stale_after_s"],
+                                max_delay_s=max_delay, count_missing=count_missing)
         self._inputs[name] = (topic, msg_type, monitor)
 
         def callback(msg: Any) -> None:
@@ -333,6 +342,10 @@ class GraphNode(Node):
                                                        raw=raw), callback)
         if polled:
             self._polled.append(name)
+
+    def input_delay_s(self, name: str) -> float | None:
+        """Input ``name``'s recent median of receive time less stamp (:meth:`SensorMonitor.delay_s`)."""
+        return self._inputs[name][2].delay_s()
 
     def take_polled(self) -> int:
         """Handle every message received on the polled inputs (:meth:`add_input`); how many."""
@@ -359,6 +372,8 @@ class GraphNode(Node):
         """Account for a LiDAR frame that ends here (``frames <what>`` on /diagnostics; ``what`` starts with
         :data:`SKIPPED` for a frame without a pose: the status is a WARN in the report after); log why."""
         self.frames[what] += 1
+        if what.startswith(SKIPPED) and detail:
+            self._last_skip = detail
         if detail:
             self.get_logger().info(f"frame {what}: {detail}", throttle_duration_sec=2.0)
 
@@ -383,8 +398,9 @@ class GraphNode(Node):
         for topic, _, monitor in self._inputs.values():
             r = monitor.report(now * 1e-9)
             values = {"rate_hz": f"{r.rate_hz:.2f}", "received": r.received, "accepted": r.accepted,
-                      "out_of_order": r.out_of_order, "clock_steps": r.clock_steps,
-                      "age_s": "none" if r.age_s is None else f"{r.age_s:.3f}"}
+                      "out_of_order": r.out_of_order, "clock_steps": r.clock_steps, "missing": r.missing,
+                      "age_s": "none" if r.age_s is None else f"{r.age_s:.3f}",
+                      "delay_ms": "none" if r.delay_s is None else f"{1e3 * r.delay_s:.1f}"}
             values.update({f"rejected: {k}": v for k, v in r.rejected.items()})
             statuses.append(diagnostic_status_to_msg(self.backend, int(r.health), f"{self.get_name()}: {r.name}",
                                                      r.message, hardware_id=topic, values=values))
@@ -394,8 +410,9 @@ class GraphNode(Node):
         self._reported = Counter(self.frames)
         if skipped:  # a fault shorter than the report period is still seen on /diagnostics
             level = max(level, DiagnosticLevel.WARN)
+            last = f" (the last: {self._last_skip[:160]})" if self._last_skip else ""
             message = "; ".join(filter(None, [message, "since the last report " + ", ".join(
-                f"{k} x{v}" for k, v in sorted(skipped.items()))]))
+                f"{k} x{v}" for k, v in sorted(skipped.items())) + last]))
         values = {**{f"frames {k}": v for k, v in sorted(self.frames.items())}, **extra}
         statuses.append(diagnostic_status_to_msg(self.backend, int(level), f"{self.get_name()}: frames", message,
                                                  values=values))
@@ -403,9 +420,10 @@ class GraphNode(Node):
 
 
 def rejection_reason(exc: Exception) -> str:
-    """A message's rejection as a short reason to count it under: its error without numbers or lists (so that one
-    kind of fault is one reason, however its values vary)."""
-    return re.sub(r"\[[^]]*\]|(?<![\w.])-?\d+(\.\d+)?", "N", str(exc))[:80]
+    """A message's rejection as a short reason to count it under: its error with numbers (and lists of them) as N
+    (so that one kind of fault is one reason, however its values vary)."""
+    numbers = re.sub(r"(?<![\w.])-?\d+(\.\d+)?(e-?\d+)?", "N", str(exc))
+    return re.sub(r"\[[\[\]N, ]*\]", "[N]", numbers)[:80]
 
 
 def tf_publisher(node: Node) -> Any:
@@ -445,10 +463,19 @@ def _spin_each(nodes: Sequence[Node]) -> list[BaseException]:
     threads = [threading.Thread(target=spin, args=(n,), name=n.get_name(), daemon=True) for n in nodes]
     for t in threads:
         t.start()
+    try:
+        _join(threads)
+    except KeyboardInterrupt:  # SIGINT: rclpy's handler has shut the context down; the executors end their spin
+        rclpy.try_shutdown()
+        _join(threads)  # no node is destroyed, nor the interpreter left, while a thread is still in a callback
+    return errors
+
+
+def _join(threads: Sequence[threading.Thread]) -> None:
+    """Wait for every thread to end (in short joins, so that a signal reaches the main thread)."""
     for t in threads:
         while t.is_alive():
             t.join(timeout=0.2)
-    return errors
 
 
 def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], GraphNode]],
@@ -483,8 +510,6 @@ def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], Grap
     sys.setswitchinterval(0.001)  # the threads of a graph take turns on the GIL within a millisecond, not five
     try:
         errors = _spin_each(nodes)
-    except KeyboardInterrupt:
-        errors = []
     finally:
         _shutdown(nodes)
     for exc in errors:

@@ -52,7 +52,14 @@ How (all vectorised over the range image, no per-point Python loops):
    to its own (people who touch merge into one cluster). Not found: the gate
    grows; after ``lost_after_s`` the status is LOST and the performer is
    re-acquired as a human-sized cluster within ``reacquire_m`` of where it was
-   last seen.
+   last seen; after ``relock_after_s`` the lock rule also looks at the whole
+   frame again, so a performer who comes back elsewhere (or a capture played
+   again from its start) is found by the pose that locked on them first.
+
+A frame stamped more than :data:`lip_ros.core.clock.CLOCK_STEP_NS` before the
+last one is a clock that stepped back (a PTP step, a bag played again): every
+stamp the tracks remember moves with it, and the frame is segmented as the
+next one; a frame only a little earlier is out of order (MALFORMED).
 """
 
 from __future__ import annotations
@@ -126,6 +133,7 @@ class SegmentationConfig:
     window_m: float = 2.5  # clustering window around the prediction
     fragment_m: float = 1.0  # unassigned clusters this close to the performer's are part of it
     lost_after_s: float = 1.0
+    relock_after_s: float = 2.0  # lost this long, the lock rule may also find the performer anywhere (a T-pose)
     other_gate_m: float = 0.8  # association radius of bystanders; new ones start farther than this from any track
     other_timeout_s: float = 0.5  # a bystander unseen this long is dropped
 
@@ -142,6 +150,8 @@ class SegmentationConfig:
                    self.fragment_m, self.reacquire_m, self.other_gate_m, self.expected_radius_m)
         if min(lengths) <= 0.0 or self.margin_per_m < 0.0 or self.link_spacing < 0.0:
             raise ValueError("distances and margins must be positive")
+        if not 0.0 < self.lost_after_s <= self.relock_after_s:
+            raise ValueError("need 0 < lost_after_s <= relock_after_s")
         if not 0.0 < self.velocity_gain <= 1.0:
             raise ValueError("velocity_gain must be in (0, 1]")
         if self.ground_plane is not None:
@@ -229,6 +239,7 @@ class PerformerSegmenter:
         self._row_shift: np.ndarray | None = None  # a staggered cloud's rows' shifts (ScanLayout.row_shift)
         self.performer: Track | None = None
         self._others: list[Track] = []
+        self._relock_tracks: list[Track] = []  # the lock rule's candidates while the performer is lost (_relock)
         self._last_stamp_ns: int | None = None
         self._period_ns = _PERIOD_NS  # the last interval between two frames (at most _PERIOD_NS)
 
@@ -289,7 +300,7 @@ class PerformerSegmenter:
         after the last (the scene, the ground and the tracks stay; only their time line moves)."""
         delta_ns -= self._period_ns
         self._last_stamp_ns += delta_ns
-        for track in ([self.performer] if self.performer is not None else []) + self._others:
+        for track in ([self.performer] if self.performer is not None else []) + self._others + self._relock_tracks:
             track.seen_ns += delta_ns
 
     def _fit_layout(self, points: np.ndarray) -> None:
@@ -449,8 +460,9 @@ class PerformerSegmenter:
 
     # ------------------------------------------------------------------ lock
 
-    def _acquire(self, frame: _Frame, stamp: int) -> SegmentationResult:
-        """Before the lock: track the human-sized clusters of all returns above the ground; lock by the rule."""
+    def _acquire(self, frame: _Frame, stamp: int, resume: bool = True) -> SegmentationResult:
+        """Before the lock: track the human-sized clusters of all returns above the ground; lock by the rule
+        (``resume``: also onto anyone near ``resume_xy``)."""
         cfg = self.config
         valid = frame.range_m > 0.0
         cand = self._cluster(frame, None, valid, np.zeros_like(valid))
@@ -460,7 +472,7 @@ class PerformerSegmenter:
         match = associate(predicted, np.full(len(self._others), cfg.other_gate_m), c.centroid,
                           np.tile(humans, (len(self._others), 1)))
         seen = self._update_others(match, c, stamp, spawn=np.flatnonzero(humans))
-        chosen = self._lock_choice(seen)
+        chosen = self._lock_choice(seen, resume)
         if chosen is None:
             return self._empty(SegmentationStatus.NO_PERFORMER, f"not locked yet: {self._lock_wait()}", stamp,
                                frame.shape)
@@ -496,12 +508,12 @@ class PerformerSegmenter:
             return f"{near}no human-sized cluster{where} has stood still and spread its arms (T-pose)"
         return f"{near}no human-sized cluster{where} has stood still for {cfg.lock_frames} frames"
 
-    def _lock_choice(self, seen: list[tuple[Track, int]]) -> tuple[Track, int] | None:
+    def _lock_choice(self, seen: list[tuple[Track, int]], resume: bool = True) -> tuple[Track, int] | None:
         """The candidate (track, its cluster) seen in this frame that the lock rule picks, if any."""
         cfg = self.config
         best, best_score = None, np.inf
         for track, k in seen:
-            if cfg.resume_xy is not None:
+            if cfg.resume_xy is not None and resume:
                 away = float(np.linalg.norm(track.position - np.asarray(cfg.resume_xy)))
                 if away <= cfg.resume_radius_m:  # resuming: any pose, before any candidate of the rule
                     if away - 1e6 < best_score:
@@ -551,12 +563,31 @@ class PerformerSegmenter:
         selected[main] = True
         return selected
 
+    def _relock(self, frame: _Frame, stamp: int) -> SegmentationResult | None:
+        """Lost for ``relock_after_s``: the lock rule over the whole frame (tracks of its own), as before the first
+        lock; the result if it locked onto someone (the new performer, wherever they are), else None."""
+        lost, others = self.performer, self._others
+        self.performer, self._others = None, self._relock_tracks
+        try:
+            result = self._acquire(frame, stamp, resume=False)
+        finally:
+            locked = self.performer
+            self._relock_tracks = [] if locked else self._others
+            self.performer, self._others = locked or lost, [] if locked else others
+        if locked is None:
+            return None
+        return replace(result, reason=f"lost for {lost.unseen_s(stamp):.1f} s, then {result.reason}")
+
     def _track(self, frame: _Frame, stamp: int) -> SegmentationResult:
         """After the lock: cluster the foreground around the prediction, assign performer and bystanders."""
         cfg = self.config
         performer = self.performer
         unseen = performer.unseen_s(stamp)
         lost = unseen >= cfg.lost_after_s
+        if unseen >= cfg.relock_after_s and (relocked := self._relock(frame, stamp)) is not None:
+            return relocked
+        if not lost:
+            self._relock_tracks = []
         gate = min(cfg.gate_m + cfg.gate_growth_mps * unseen, cfg.reacquire_m)
         tracks = [performer, *self._others]
         predicted = np.array([t.predict(stamp, cfg.horizon_s) for t in tracks])

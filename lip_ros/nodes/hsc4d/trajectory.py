@@ -159,7 +159,9 @@ class TrajectoryNode(GraphNode):
         self._tf_pub = tf_publisher(self) if p["publish_tf"] else None
         clouds = QoSProfile(depth=int(np.ceil(_CLOUD_QUEUE_S * p["lidar_rate_hz"])), reliability=IMU_INPUT.reliability,
                             durability=IMU_INPUT.durability)
-        self.add_input("hip lidar", p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud, clouds)
+        self.add_input("hip lidar", p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud, clouds,
+                       # the suit's inputs are on its own clock: not checked
+                       stamped_at=1.0 / p["lidar_rate_hz"], count_missing=True)
         suit = suit_input(p["suit_rate_hz"])
         self.add_input(_SUIT_INPUTS[0], p["pelvis_imu_topic"], Imu, p["suit_rate_hz"], self._on_pelvis, suit)
         self.add_input(_SUIT_INPUTS[1], p["suit_odometry_topic"], Odometry, p["suit_rate_hz"], self._on_suit_odometry,

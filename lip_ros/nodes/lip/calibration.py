@@ -42,6 +42,7 @@ from lip_msgs_py import (
 )
 from lip_ros.core.imu_sync import SyncConfig
 from lip_ros.core.rotations import matrix_to_quat
+from lip_ros.core.sensor_monitor import odd_delays
 from lip_ros.lip.calibration import CalibrationError
 from lip_ros.lip.dot_latency import LatencyConfig
 from lip_ros.lip.sensors import IMU_NAMES
@@ -61,8 +62,10 @@ from lip_ros.nodes.base import (
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
 from lip_ros.nodes.lip.ground import GROUND_PARAM, subscribe_ground
 
-__all__ = ["CalibrationNode", "main", "DOT_LATENCY_VALUE"]
+__all__ = ["CalibrationNode", "main", "DOT_LATENCY_VALUE", "DOT_STAMP_SPREAD_S"]
 
+#: DOTs stamped on arrival at one host agree on receive time less stamp; one this much off the others' is a WARN.
+DOT_STAMP_SPREAD_S = 0.025
 #: The value of ``calibration_node: frames`` on /diagnostics with the DOT latencies in use.
 DOT_LATENCY_VALUE = "DOT latency taken off (ms)"
 
@@ -130,7 +133,7 @@ class CalibrationNode(GraphNode):
         self._last_sync = "no frame yet"
         for name, topic in zip(IMU_NAMES, p["imu_topics"]):
             self.add_input(name, topic, Imu, p["imu_rate_hz"], lambda msg, name=name: self._on_imu(name, msg),
-                           IMU_INPUT)
+                           IMU_INPUT, stamped_at=0.0)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
                        self._on_performer, BETWEEN_NODES)
         subscribe_ground(self, p["ground_topic"], self._on_ground)
@@ -257,6 +260,11 @@ class CalibrationNode(GraphNode):
         """Calibration state, sync health, frames waiting for DOT data, latency performer cloud -> bones published."""
         level = DiagnosticLevel.OK if self.stage.calibrated else DiagnosticLevel.WARN
         message = self.stage.status
+        odd = odd_delays({n: self.input_delay_s(n) for n in IMU_NAMES}, DOT_STAMP_SPREAD_S)
+        if odd:  # the pose is interpolated at the wrong time for that DOT
+            level = max(level, DiagnosticLevel.WARN)
+            message = "; ".join([message, *(f"{n} stamped {abs(1e3 * d):.0f} ms {'ahead of' if d < 0 else 'behind'} "
+                                           "the other DOTs (against their arrival)" for n, d in odd.items())])
         if self._last_sync.startswith(CLOCKS_REASON):  # nothing can come out until the clocks agree
             level, message = DiagnosticLevel.ERROR, self._last_sync
         return level, message, {"calibration": "calibrated" if self.stage.calibrated else "none",

@@ -85,7 +85,9 @@ class SegmentationNode(GraphNode):
         self._pub = self.create_publisher(PointCloud2, p["performer_topic"], BETWEEN_NODES)
         self._ground_pub = self.create_publisher(PoseStamped, p["ground_topic"], LATCHED)
         self._ground_sent = False
-        self.add_input(p["lidar_name"], p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud)
+        self.add_input(p["lidar_name"], p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud,
+                       # ouster-ros stamps the sweep's start
+                       stamped_at=1.0 / p["lidar_rate_hz"], count_missing=True)
 
     def _on_cloud(self, msg: PointCloud2) -> int:
         received = time.monotonic()
@@ -94,7 +96,7 @@ class SegmentationNode(GraphNode):
             points = cloud_to_array(msg)
         except MalformedMessageError as exc:
             self._last_status = f"malformed cloud: {exc}"
-            self.count_frame("skipped: malformed cloud")
+            self.count_frame("skipped: malformed cloud", f"{stamp_ns}: {exc}")
             raise
         seg = self._segmenter.process(points, stamp_ns)
         if seg.clock_step_ns:
