@@ -1,0 +1,165 @@
+"""The LIP graph over real DDS on faulty captures (lip_ros.rig.faults), judged as a user would from its outputs and
+/diagnostics: no process fails or aborts, every frame is accounted for, no output is NaN, each fault is named on
+/diagnostics while it lasts (stamped in data time), the poses resume with the first frame after it, and a clock
+that steps back or ahead (a PTP step, a bag played again) loses nothing and keeps the calibration."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import console_script
+
+from lip_msgs_py import msg_to_diagnostics, msg_to_pose_array, msg_to_pose_stamped
+from lip_ros.bagio import bag_topics, read_messages
+from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
+from lip_ros.rig.bag import write_capture_bag
+from lip_ros.rig.capture import CaptureConfig, CaptureSession
+from lip_ros.rig.faults import FaultSpec, read_fault_windows, write_faulty_bag
+from lip_ros.tools.bag_play import CLOCK_QOS
+from lip_ros.tools.process_bag import summarize_outputs
+
+pytestmark = pytest.mark.ros  # DDS traffic and subprocesses
+
+#: the demo bag's set-up, 30 s: calibration poses until about 5 s, then walking
+CAPTURE = CaptureConfig(scenario="walk", seconds=30.0, seed=1, distance_m=6.0, columns=512,
+                        azimuth_window_deg=(150.0, 210.0))
+#: faults on the sensors, one after another (start, seconds of receive time), each named on /diagnostics by a
+#: status whose name contains the first string and whose message contains the second
+SENSOR_FAULTS = {
+    "bad_imu_samples": ((7.0, 1.0), ("calibration_node: ", "non-finite")),
+    "imu_reordered": ((9.0, 1.0), ("calibration_node: ", "duplicate stamp")),
+    "imu_silent": ((11.0, 3.0), ("calibration_node: left_ankle", "no valid message")),
+    "imus_silent": ((15.5, 1.0), ("calibration_node: frames", "skipped: IMU")),
+    "imu_late": ((18.0, 1.0), ("calibration_node: ", "after their stamps")),
+    "malformed_clouds": ((20.0, 0.5), ("segmentation_node: ouster", "rejected")),
+    "blinded_clouds": ((21.5, 0.3), ("segmentation_node: frames", "no returns")),
+    "empty_clouds": ((22.5, 0.2), ("segmentation_node: frames", "has no points")),
+    "lidar_gap": ((23.5, 2.0), ("segmentation_node: ouster", "no valid message")),
+    "lidar_drops": ((26.5, 3.0), ("segmentation_node: ouster", "missing")),
+    "imu_ahead": ((26.5, 3.0), ("calibration_node: frames", "left_ankle stamped")),
+}
+#: the sensors' clock 5 s back at 12 s, and 5 s ahead again at 20 s (to the end)
+CLOCK_FAULTS = {
+    "clock_back": ((12.0, 100.0), ("segmentation_node: ouster", "stepped back")),
+    "clock_forward": ((20.0, 100.0), ("calibration_node: left_wrist", "stepped ahead")),
+}
+REPORT_S = 2.5  # a fault's WARN may come this long after its last message (0.5 s reports, 2 s windows)
+PERIOD_NS = 100_000_000  # of the LiDAR
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    bag = tmp_path_factory.mktemp("faults") / "capture"
+    write_capture_bag(CaptureSession(CAPTURE), bag, progress=False)
+    return bag
+
+
+@pytest.fixture(scope="module", params=["sensors", "clock"])
+def run(request: pytest.FixtureRequest, capture: Path) -> tuple[Path, Path, dict, subprocess.CompletedProcess]:
+    """``lip_process_bag`` on the capture with one group of faults: (faulty bag, outputs, faults, process)."""
+    faults = SENSOR_FAULTS if request.param == "sensors" else CLOCK_FAULTS
+    bag = capture.with_name(request.param)
+    write_faulty_bag(capture, bag, [FaultSpec(kind, *window) for kind, (window, _) in faults.items()], seed=5)
+    out = capture.with_name(f"{request.param}_outputs")
+    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out)], capture_output=True, text=True,
+                          timeout=240)
+    return bag, out, faults, proc
+
+
+def test_no_process_fails_and_every_frame_is_accounted_for(run) -> None:
+    bag, out, faults, proc = run
+    assert proc.returncode == 0, proc.stderr[-3000:]  # the tool checks that each of its processes ended with 0
+    assert "Traceback" not in proc.stderr and "terminate called" not in proc.stderr, proc.stderr[-3000:]
+    assert "not accounted for" not in proc.stdout, proc.stdout
+    summary = summarize_outputs(bag, out)
+    assert summary.received == summary.frames_in == bag_topics(bag)[LIDAR_TOPIC].count
+    assert sum(summary.frames.values()) == summary.frames_in
+    if "clock_back" in faults:  # a clock step loses no frame: only those before the lock, and the calibration
+        assert set(summary.frames) == {"pose", "calibrating", "skipped: no_performer"}, summary.frames
+        assert summary.frames["calibrating"] + summary.frames["skipped: no_performer"] <= 50
+
+
+def test_no_output_is_nan(run) -> None:
+    out = run[1]
+    poses = [msg_to_pose_array(m.msg) for m in read_messages(out, [LIP_TOPICS.joint_poses])]
+    assert len(poses) > 100
+    assert all(np.isfinite(p.positions).all() and np.isfinite(p.quats).all() for p in poses)
+
+
+def test_each_fault_is_on_diagnostics_while_it_lasts(run) -> None:
+    bag, out, faults, _ = run
+    statuses = [(d.stamp_ns, s) for d in (msg_to_diagnostics(m.msg) for m in read_messages(out, ["/diagnostics"]))
+                for s in d.statuses if s.level > 0]
+    for window in read_fault_windows(bag):
+        name, text = faults[window.kind][1]
+        named = [t for t, s in statuses if name in s.name and text in s.message
+                 and window.start_ns <= t <= window.end_ns + REPORT_S * 1e9]
+        assert named, f"{window.kind}: no WARN/ERROR on /diagnostics from '{name}' saying '{text}'"
+
+
+def test_the_poses_resume_with_the_first_frame_after_each_fault(run) -> None:
+    bag, out, _, _ = run
+    poses = np.array(sorted(msg_to_pose_stamped(m.msg).stamp_ns for m in read_messages(out, [LIP_TOPICS.root_pose])))
+    for window in read_fault_windows(bag):
+        after = poses[poses > window.end_ns]
+        if after.size == 0:  # the fault lasts to the end of the capture (the clock steps)
+            continue
+        # a pose holds at its frame's start plus the performer's mean scan time: within the next frame
+        assert after[0] - window.end_ns <= 2 * PERIOD_NS, f"{window.kind}: first pose {after[0] - window.end_ns} ns"
+
+
+def test_a_bag_played_again_is_posed_again_with_the_same_calibration(capture: Path, tmp_path: Path,
+                                                                      ros_node) -> None:
+    """``lip_bag_play --loop``: /clock and every stamp go back to the start. The graph keeps its calibration (no
+    frame of the second pass is calibrating), finds the performer again by the T-pose and poses the second pass;
+    player, recorder and graph stop on SIGTERM with status 0, the recorder's bag complete."""
+    import rclpy
+    from rosgraph_msgs.msg import Clock
+
+    clock: list[int] = []
+    ros_node.create_subscription(Clock, "/clock", lambda m: clock.append(m.clock.sec * 10**9 + m.clock.nanosec),
+                                 CLOCK_QOS)
+    node = subprocess.Popen([console_script("fusion_node"), "--ros-args", "-p", "use_sim_time:=true",
+                             "-p", "diagnostics_period_s:=0.5", "-p", f"calibration_file:={tmp_path / 'cal.yaml'}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    recorder = subprocess.Popen([console_script("lip_bag_record"), str(tmp_path / "out"), "--topics",
+                                 LIP_TOPICS.root_pose, "/diagnostics"], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+    player = subprocess.Popen([console_script("lip_bag_play"), str(capture), "--clock", "--loop",
+                               "--wait-for-subscribers", "--rate", "2", "--topics", *INPUT_TOPICS],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120.0
+        while time.monotonic() < deadline and player.poll() is None:  # until 25 s into the second pass
+            rclpy.spin_once(ros_node, timeout_sec=0.1)
+            rewound = np.flatnonzero(np.diff(clock) < 0)
+            if rewound.size and clock[-1] - clock[rewound[0] + 1] >= 25 * 10**9:
+                break
+        assert rewound.size, "the player did not play the bag again"
+        time.sleep(2.0)  # the last frames through the graph, the last diagnostics to the recorder
+    finally:
+        codes = {}
+        for proc in (player, recorder, node):  # SIGTERM, as a process manager stops them (lip_process_bag: SIGINT)
+            proc.send_signal(signal.SIGTERM)
+            codes[Path(str(proc.args[0])).name] = proc.wait(timeout=30)
+    log = node.stdout.read()
+    assert set(codes.values()) == {0}, codes
+    assert "Traceback" not in log and "terminate called" not in log, log[-3000:]
+    assert "stepped back" in log  # said in the log
+    stamps = [msg_to_pose_stamped(m.msg).stamp_ns for m in read_messages(tmp_path / "out", [LIP_TOPICS.root_pose])]
+    back = np.flatnonzero(np.diff(stamps) < 0)
+    assert back.size == 1, "the second pass was not posed"
+    first, second = stamps[: back[0] + 1], stamps[back[0] + 1 :]
+    assert len(second) >= len(first) * 0.7, (len(first), len(second))  # 25 of the 30 s, from the T-pose on
+    calibrating = []  # (stamp, frames calibrating so far), in the order reported
+    for m in read_messages(tmp_path / "out", ["/diagnostics"]):
+        d = msg_to_diagnostics(m.msg)
+        calibrating += [(d.stamp_ns, int(s.values.get("frames calibrating", 0))) for s in d.statuses
+                        if s.name == "calibration_node: frames"]
+    rewind = np.flatnonzero(np.diff([t for t, _ in calibrating]) < 0)[0]
+    assert calibrating[rewind][1] > 10 and calibrating[-1][1] == calibrating[rewind][1]  # none in the second pass
