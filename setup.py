@@ -45,7 +45,8 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
         ("share/" + PACKAGE + "/params", sorted(glob("params/*.yaml") + glob("params/*.urdf") + glob("params/*.xml"))),
-        ("share/" + PACKAGE + "/params/weights", sorted(glob("params/weights/*.pt") + glob("params/weights/*.json"))),
+        ("share/" + PACKAGE + "/params/weights", sorted(glob("params/weights/*.pt") + glob("params/weights/*.json")
+                                                          + glob("params/weights/*.sha256"))),
         ("share/" + PACKAGE + "/launch", sorted(glob("launch/*.launch.xml"))),
     ],
     install_requires=["setuptools"],

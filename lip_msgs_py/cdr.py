@@ -33,7 +33,7 @@ from lip_msgs_py._validate import QUAT_UNIT_TOLERANCE
 from lip_msgs_py.errors import MalformedMessageError
 from lip_msgs_py.stamps import NS_PER_S
 
-__all__ = ["CloudMsg", "cloud_msg", "imu_samples", "cdr_stamp"]
+__all__ = ["CloudMsg", "cloud_msg", "imu_samples", "cdr_stamp", "with_cdr_stamp"]
 
 _LITTLE_ENDIAN = b"\x00\x01"  # CDR_LE encapsulation
 _U32 = struct.Struct("<I")
@@ -169,6 +169,15 @@ def cdr_stamp(data: bytes | memoryview) -> int:
     if not 0 <= nanosec < NS_PER_S:
         raise MalformedMessageError(f"CDR: header stamp nanosec {nanosec} out of range")
     return sec * NS_PER_S + nanosec
+
+
+def with_cdr_stamp(data: bytes | memoryview, stamp_ns: int) -> bytes:
+    """A copy of a little-endian CDR message that starts with a std_msgs/Header, stamped ``stamp_ns`` (the rest of
+    the bytes as they were); MalformedMessageError as :func:`cdr_stamp`."""
+    cdr_stamp(data)
+    out = bytearray(data)
+    _STAMP.pack_into(out, 4, *divmod(int(stamp_ns), NS_PER_S))
+    return bytes(out)
 
 
 def _imu_head(data: memoryview) -> tuple[int, str, int] | None:

@@ -63,6 +63,7 @@ def test_colcon_layout(colcon_install: Path) -> None:
     assert (share / "lip_ros" / "params" / "smpl24_skeleton.yaml").is_file()
     assert (share / "lip_ros" / "params" / "smpl24_skeleton.urdf").is_file()
     assert (share / "lip_ros" / "params" / "weights" / "lip_small.pt").is_file()
+    assert (share / "lip_ros" / "params" / "weights" / "lip_small.sha256").is_file()
     assert (share / "lip_ros" / "params" / "weights" / "lip_small.json").is_file()
     assert (share / "lip_ros" / "params" / "fastdds_lip.xml").is_file()
     assert (share / "lip_ros" / "launch" / "lip_real_rig.launch.xml").is_file()

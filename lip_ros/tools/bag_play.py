@@ -1,12 +1,18 @@
 """lip_bag_play: publish a rosbag2 bag's messages with their recorded timing and QoS (as ``ros2 bag play`` does).
 
-  lip_bag_play BAG [--rate R] [--start S] [--loop] [--clock [HZ]] [--topics T ...] [--wait-for-subscribers]
+  lip_bag_play BAG [--rate R] [--start S] [--loop [--time-goes-on]] [--clock [HZ]] [--topics T ...]
+               [--wait-for-subscribers]
 
 Messages keep their log-time spacing (divided by ``--rate``) and are published
 as the CDR bytes stored in the bag, never deserialised; each topic gets the
 reliability, durability and depth its publishers offered when it was recorded.
 ``--clock`` also publishes ``/clock`` (rosgraph_msgs/Clock, bag time) for nodes
-with ``use_sim_time``. Progress on stderr, a summary on stdout.
+with ``use_sim_time``. ``--loop`` plays the bag again and again, each pass with
+the bag's own time (as ``ros2 bag play --loop``: /clock and the stamps go back);
+with ``--time-goes-on`` each pass goes on from where the last one ended
+instead: /clock and every header stamp move on by the played window's length
+plus :data:`LOOP_GAP_NS`, as one long capture would (a soak test). Progress on
+stderr, a summary on stdout.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from lip_msgs_py import ns_to_sec_nanosec, rclpy_message_class
+from lip_msgs_py.cdr import cdr_stamp, with_cdr_stamp
 from lip_msgs_py.stamps import NS_PER_S
 from lip_ros.bagio import BagError, TopicInfo, bag_span, bag_topics, read_raw
 from lip_ros.tools.bag_qos import common_qos, qos_to_rclpy
@@ -39,6 +46,7 @@ DEFAULT_CLOCK_HZ = 40.0  # ros2 bag play --clock's default
 DISCOVERY_SETTLE_S = 0.5  # after the subscribers appear, for their side of discovery to finish too
 ACK_TIMEOUT = Duration(seconds=2)  # reliable topics: wait this long at the end for the last messages' acks
 LINGER_S = 0.5  # best-effort topics: stay this long at the end, as subscribers lose what an exiting writer sent last
+LOOP_GAP_NS = 100_000_000  # --time-goes-on: from the end of one pass to the start of the next, in bag time
 
 
 @dataclass(frozen=True)
@@ -54,6 +62,7 @@ class PlayPlan:
     loop: bool = False
     clock_hz: float | None = None
     wait_for_subscribers: bool = False
+    time_goes_on: bool = False  # with loop: each pass's time follows the last one's (header stamps and /clock)
 
 
 @dataclass
@@ -67,7 +76,8 @@ class PlayStats:
 
 
 def plan_playback(bag: Path, rate: float = 1.0, start_s: float = 0.0, topics: list[str] | None = None,
-                  loop: bool = False, clock_hz: float | None = None, wait_for_subscribers: bool = False) -> PlayPlan:
+                  loop: bool = False, clock_hz: float | None = None, wait_for_subscribers: bool = False,
+                  time_goes_on: bool = False) -> PlayPlan:
     """Check the bag and options and resolve each topic's rclpy message class; ToolError on a problem."""
     if not rate > 0:
         raise ToolError(f"--rate must be > 0, got {rate}")
@@ -96,7 +106,10 @@ def plan_playback(bag: Path, rate: float = 1.0, start_s: float = 0.0, topics: li
     start_ns = first_ns + round(start_s * NS_PER_S)
     if start_ns > last_ns:
         raise ToolError(f"--start {start_s} s is past the end of the bag ({(last_ns - first_ns) / NS_PER_S:.1f} s)")
-    return PlayPlan(Path(bag), selected, classes, start_ns, last_ns, rate, loop, clock_hz, wait_for_subscribers)
+    if time_goes_on and not loop:
+        raise ToolError("--time-goes-on is for --loop")
+    return PlayPlan(Path(bag), selected, classes, start_ns, last_ns, rate, loop, clock_hz, wait_for_subscribers,
+                    time_goes_on)
 
 
 class BagPlayer:
@@ -110,6 +123,9 @@ class BagPlayer:
             for topic, info in plan.topics.items()
         }
         self.clock_pub = node.create_publisher(Clock, CLOCK_TOPIC, CLOCK_QOS) if plan.clock_hz else None
+        #: the topics whose messages start with a std_msgs/Header (their stamps move on with --time-goes-on)
+        self.stamped = {t for t, c in plan.classes.items()
+                        if next(iter(c.get_fields_and_field_types().items()), None) == ("header", "std_msgs/Header")}
         self.stats = PlayStats(per_topic=dict.fromkeys(plan.topics, 0))
 
     def run(self) -> PlayStats:
@@ -117,7 +133,8 @@ class BagPlayer:
         if self.plan.wait_for_subscribers and not self._wait_for_subscribers():
             return self.stats
         while not self.stop.is_set():
-            self._play_pass()
+            offset = self.stats.passes * (self.plan.end_ns - self.plan.start_ns + LOOP_GAP_NS)
+            self._play_pass(offset if self.plan.time_goes_on else 0)
             self.stats.passes += 1
             if not self.plan.loop:
                 break
@@ -137,8 +154,9 @@ class BagPlayer:
             self.stop.wait(0.05)
         return False
 
-    def _play_pass(self) -> None:
-        """Publish the window once; message k at wall0 + (log_k - start) / rate."""
+    def _play_pass(self, offset_ns: int = 0) -> None:
+        """Publish the window once; message k at wall0 + (log_k - start) / rate; ``offset_ns`` later in time (the
+        header stamps and /clock)."""
         plan = self.plan
         with closing(read_raw(plan.bag, plan.topics, plan.start_ns)) as messages:
             first = next(messages, None)  # the bag is open and its first chunk read before the clock starts
@@ -151,7 +169,7 @@ class BagPlayer:
                         return
                     bag_ns = plan.start_ns + round((now - wall0) * plan.rate)
                     if self.clock_pub is not None and now >= next_clock:
-                        self._publish_clock(bag_ns)
+                        self._publish_clock(bag_ns + offset_ns)
                         next_clock += round(NS_PER_S / plan.clock_hz)
                     if self.progress:
                         self.progress(self._status(bag_ns))
@@ -159,7 +177,9 @@ class BagPlayer:
                     self.stop.wait((wake - now) / NS_PER_S)
                 if self.stop.is_set():
                     return
-                self.publishers[m.topic].publish(m.data)
+                stamped = offset_ns and m.topic in self.stamped
+                self.publishers[m.topic].publish(with_cdr_stamp(m.data, cdr_stamp(m.data) + offset_ns) if stamped
+                                                 else m.data)
                 self.stats.messages += 1
                 self.stats.per_topic[m.topic] += 1
                 self.stats.max_lag_ms = max(self.stats.max_lag_ms, (time.monotonic_ns() - due) / 1e6)
@@ -182,6 +202,9 @@ def parser() -> ArgumentParser:
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
     p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds of the bag")
     p.add_argument("--loop", action="store_true", help="play again and again until interrupted")
+    p.add_argument("--time-goes-on", action="store_true",
+                   help="with --loop: each pass's /clock and header stamps go on from the last pass's end (one long "
+                        "capture) instead of going back to the bag's start")
     p.add_argument("--clock", type=float, nargs="?", const=DEFAULT_CLOCK_HZ, metavar="HZ",
                    help=f"publish {CLOCK_TOPIC} (bag time) at HZ (default {DEFAULT_CLOCK_HZ:g}) for use_sim_time")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="play only these topics")
@@ -193,7 +216,7 @@ def parser() -> ArgumentParser:
 def _play(argv: list[str]) -> int:
     args = parser().parse_args(tool_args(argv))
     plan = plan_playback(args.bag, args.rate, args.start, args.topics, args.loop, args.clock,
-                         args.wait_for_subscribers)
+                         args.wait_for_subscribers, args.time_goes_on)
     stop = stop_on_signals()
     start_ros(argv)
     node = rclpy.create_node("lip_bag_play")

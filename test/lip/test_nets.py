@@ -13,7 +13,7 @@ from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_kinematics import SkeletonTensors, forward_kinematics, matrix_to_six_d
 from lip_ros.lip.evaluation.report import VARIANTS as EVAL_VARIANTS
 from lip_ros.lip.nets.config import VARIANTS, LipConfig
-from lip_ros.lip.nets.lip_model import SHIPPED_WEIGHTS, LipModel, LipOutput
+from lip_ros.lip.nets.lip_model import SHIPPED_WEIGHTS, LipModel, LipOutput, WeightsError, check_weights
 from lip_ros.lip.nets.losses import LOSS_NAMES, LossTargets, lip_losses
 from lip_ros.lip.nets.models import LipNet
 from lip_ros.lip.nets.preprocess import Preprocessor, sample_points, view_rotation
@@ -252,3 +252,27 @@ def test_instrumented_bones_stay_near_their_imus(tolerance):
             moved.add(j)
     others = sorted(set(range(24)) - moved)
     np.testing.assert_allclose(glob[:, others], glob_free[:, others], atol=1e-9)  # nothing above or beside moves
+
+
+def test_weights_load_only_when_they_match_their_sha256(tmp_path):
+    """LipModel.save writes the SHA-256 of both files; a changed byte, a missing or incomplete SHA-256 file, or
+    another file's SHA-256 stops the load with a WeightsError that says which, before anything is read."""
+    check_weights(params_dir() / "weights" / SHIPPED_WEIGHTS)  # the shipped weights come with theirs
+    model = _tiny_model()
+    model.save(tmp_path / "w")
+    LipModel.load(tmp_path / "w", surface_fit=None)
+    pt = (tmp_path / "w.pt").read_bytes()
+    (tmp_path / "w.pt").write_bytes(pt[:-1] + bytes([pt[-1] ^ 1]))
+    with pytest.raises(WeightsError, match="w.pt does not match its SHA-256"):
+        LipModel.load(tmp_path / "w")
+    (tmp_path / "w.pt").write_bytes(pt)
+    sums = (tmp_path / "w.sha256").read_text()
+    (tmp_path / "w.sha256").write_text(sums.splitlines()[0] + "\n")
+    with pytest.raises(WeightsError, match="no SHA-256 of w.json"):
+        LipModel.load(tmp_path / "w")
+    (tmp_path / "w.sha256").write_text("not a digest\n")
+    with pytest.raises(WeightsError, match="sha256sum format"):
+        LipModel.load(tmp_path / "w")
+    (tmp_path / "w.sha256").unlink()
+    with pytest.raises(WeightsError, match="sha256sum w.pt w.json > w.sha256"):
+        LipModel.load(tmp_path / "w")

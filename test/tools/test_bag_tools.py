@@ -32,6 +32,7 @@ from lip_ros.bagio import (
     read_messages,
     read_raw,
 )
+from lip_ros.tools.bag_play import LOOP_GAP_NS
 from lip_ros.tools.bag_qos import common_qos, qos_to_bag, qos_to_rclpy
 
 pytestmark = pytest.mark.ros  # DDS traffic or subprocesses
@@ -167,6 +168,31 @@ def test_loop_plays_until_interrupted() -> None:
     messages = int(out.split(" messages in ")[0].rsplit(" ", 1)[1])
     assert passes >= 2 and "interrupted" in out, out
     assert (passes - 1) * per_pass <= messages <= passes * per_pass
+
+
+def test_loop_with_time_going_on_moves_the_stamps_and_the_clock_on(tmp_path: Path) -> None:
+    """``--loop --time-goes-on``: pass k is pass 0 stamped k x (window + LOOP_GAP_NS) later, the clock with it;
+    nothing else of a message changes."""
+    out = tmp_path / "soak"
+    recorder = subprocess.Popen([console_script("lip_bag_record"), str(out), "--topics", "/gt/root_pose", "/clock"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    player = subprocess.Popen([console_script("lip_bag_play"), str(DEMO_BAG), "--loop", "--time-goes-on", "--start",
+                               "12", "--clock", "--wait-for-subscribers", "--topics", "/gt/root_pose"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(6.0)  # start-up, then about 1 s per pass
+    assert _stop(player, signal.SIGINT)[0] == 0
+    assert _stop(recorder, signal.SIGINT)[0] == 0
+    start = bag_span(DEMO_BAG)[0] + 12 * 10**9
+    one = [m.msg for m in read_messages(DEMO_BAG, ["/gt/root_pose"]) if m.log_ns >= start]
+    window = bag_span(DEMO_BAG)[1] - start + LOOP_GAP_NS
+    played = [m.msg for m in read_messages(out, ["/gt/root_pose"])]
+    assert len(played) >= 2 * len(one)
+    for k, msg in enumerate(played):
+        twin = one[k % len(one)]
+        assert stamp_to_ns(msg.header.stamp) == stamp_to_ns(twin.header.stamp) + (k // len(one)) * window
+        assert msg.pose == twin.pose
+    clock = [stamp_to_ns(m.msg.clock) for m in read_messages(out, ["/clock"])]
+    assert np.all(np.diff(clock) >= 0) and clock[-1] - clock[0] > window
 
 
 def test_recorder_stops_after_max_messages(tmp_path: Path) -> None:

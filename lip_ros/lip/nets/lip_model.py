@@ -16,11 +16,17 @@ to the current one only.
 
 Weights are a plain ``state_dict`` file (``<name>.pt``, loadable with
 ``torch.load(..., weights_only=True)``; float32, or float16 for the shipped
-ones, loaded into float32) beside a JSON :class:`LipConfig` (``<name>.json``).
+ones, loaded into float32) beside a JSON :class:`LipConfig` (``<name>.json``)
+and their SHA-256 (``<name>.sha256``, the ``sha256sum`` format: both files),
+which :meth:`LipModel.load` checks before it reads either (:class:`WeightsError`
+if it is missing or does not match: weights changed or swapped on the way are
+never loaded); :meth:`LipModel.save` writes all three.
 """
 
 from __future__ import annotations
 
+import hashlib
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,7 +44,45 @@ from lip_ros.lip.sensors import IMU_NAMES
 from lip_ros.lip.surface_fit import SURFACE_FIT, SurfaceFitConfig, SurfaceFitter
 from lip_ros.resources import params_dir
 
-__all__ = ["LipOutput", "LipModel", "SHIPPED_WEIGHTS", "BONE_TOLERANCE_DEG", "stack_frames"]
+__all__ = ["LipOutput", "LipModel", "SHIPPED_WEIGHTS", "BONE_TOLERANCE_DEG", "stack_frames", "WeightsError",
+           "check_weights"]
+
+class WeightsError(ValueError):
+    """Weights whose SHA-256 file is missing or does not match them."""
+
+
+def _weight_files(path: Path) -> tuple[Path, Path]:
+    return path.with_suffix(".pt"), path.with_suffix(".json")
+
+
+def _sha256(file: Path) -> str:
+    digest = hashlib.sha256()
+    with open(file, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def check_weights(path: str | Path) -> None:
+    """Check ``<path>.pt`` and ``<path>.json`` against ``<path>.sha256``; :class:`WeightsError` if it is missing,
+    lacks one of them or does not match."""
+    path = Path(path)
+    sums = path.with_suffix(".sha256")
+    try:
+        lines = [line.split(maxsplit=1) for line in sums.read_text(encoding="utf-8").splitlines() if line.strip()]
+    except OSError as exc:
+        raise WeightsError(f"{sums}: cannot read the weights' SHA-256 ({exc.strerror}); weights are only loaded "
+                           f"with it (LipModel.save writes it; for weights of your own: "
+                           f"cd {path.parent} && sha256sum {path.stem}.pt {path.stem}.json > {sums.name})") from None
+    if any(len(parts) != 2 or re.fullmatch(r"[0-9a-fA-F]{64}", parts[0]) is None for parts in lines):
+        raise WeightsError(f"{sums}: not in the sha256sum format (<hex>  <file name> per line)")
+    listed = {name.strip().lstrip("*"): digest.lower() for digest, name in lines}  # "*": sha256sum -b
+    for file in _weight_files(path):
+        if file.name not in listed:
+            raise WeightsError(f"{sums} has no SHA-256 of {file.name}")
+        if _sha256(file) != listed[file.name]:
+            raise WeightsError(f"{file} does not match its SHA-256 in {sums}: not loaded")
+
 
 #: Stem of the shipped weights in the package's ``params/weights/``.
 SHIPPED_WEIGHTS = "lip_small"
@@ -150,6 +194,7 @@ class LipModel:
         """Load ``<path>.pt`` and ``<path>.json`` (default: the shipped weights); the other arguments as the
         constructor's."""
         path = Path(path) if path is not None else params_dir() / "weights" / SHIPPED_WEIGHTS
+        check_weights(path)
         net = LipNet(LipConfig.load(path.with_suffix(".json")))
         net.load_state_dict(torch.load(path.with_suffix(".pt"), map_location="cpu", weights_only=True))
         return cls(net, bone_tolerance_deg, surface_fit)
@@ -163,6 +208,8 @@ class LipModel:
         state = {k: v.to("cpu", dtype) if v.is_floating_point() else v.cpu() for k, v in self.net.state_dict().items()}
         torch.save(state, path.with_suffix(".pt"))
         self.config.save(path.with_suffix(".json"))
+        path.with_suffix(".sha256").write_text("".join(f"{_sha256(f)}  {f.name}\n" for f in _weight_files(path)),
+                                                encoding="utf-8")
 
     @property
     def performer_shape(self) -> dict[str, float]:
