@@ -14,7 +14,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 ROS_DOMAIN_ID ?= $(shell $(PYTHON) -c 'import random; print(random.randint(1, 100))')
 export ROS_DOMAIN_ID
 
-.PHONY: venv demo demo-bag demo-hsc4d test bench urdf clean
+.PHONY: venv demo demo-bag demo-hsc4d test bench urdf clean clean-shm
 
 venv: $(INSTALLED)
 
@@ -57,6 +57,10 @@ bench: $(INSTALLED)
 
 urdf: $(INSTALLED)
 	$(PY) -m lip_ros.tools.make_urdf
+
+# Fast DDS shared memory left by ROS processes that were killed or crashed (segments no live process holds).
+clean-shm: $(INSTALLED)
+	$(PY) -c 'from lip_ros.middleware import remove_stale_shm; print(f"removed {len(remove_stale_shm())} files")'
 
 clean:
 	rm -rf $(VENV) $(OUT) build install log .pytest_cache

@@ -9,17 +9,24 @@ with a large segment and a deep port queue. Every executable calls
 (it is removed, as Fast DDS would log a parse error for it, and Fast DDS's
 defaults apply). The profile does not touch discovery: ``ROS_AUTOMATIC_DISCOVERY_RANGE``
 and ``ROS_DOMAIN_ID`` keep their meaning.
+
+A process that ends without closing its participants (killed, or crashed) leaves
+its shared-memory segments in ``/dev/shm`` (``fastrtps_*``, 128 MB each with this
+profile), and Fast DDS does not reclaim them: :func:`remove_stale_shm` does
+(the test session calls it at its end; ``make clean-shm`` too).
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
+import time
 from collections.abc import MutableMapping
 from pathlib import Path
 
 from lip_ros.resources import params_path
 
-__all__ = ["PROFILE_ENV", "PROFILE_FILE", "use_lip_dds_profile"]
+__all__ = ["PROFILE_ENV", "PROFILE_FILE", "use_lip_dds_profile", "remove_stale_shm"]
 
 PROFILE_FILE = "fastdds_lip.xml"
 PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"  # Fast DDS 2.x (ROS 2 Jazzy)
@@ -40,3 +47,34 @@ def use_lip_dds_profile(environ: MutableMapping[str, str] | None = None) -> Path
     profile = params_path(PROFILE_FILE)
     env[PROFILE_ENV] = str(profile)
     return profile
+
+
+def remove_stale_shm(shm: Path = Path("/dev/shm"), min_age_s: float = 10.0) -> list[Path]:
+    """Remove the Fast DDS shared-memory files that no live process holds: each ``fastrtps_<name>`` (a segment,
+    or a port with its ``sem.fastrtps_<name>_mutex``) whose lock file ``fastrtps_<name>_el`` is locked by no
+    one (Fast DDS holds it while the segment is in use) and older than ``min_age_s`` (not one being set up now).
+    The files removed."""
+    removed = []
+    for lock in sorted(shm.glob("fastrtps_*_el")):
+        try:
+            if time.time() - lock.stat().st_mtime < min_age_s:
+                continue
+            fd = os.open(lock, os.O_RDWR)
+        except OSError:  # gone meanwhile, or not ours to open
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # held: in use
+            os.close(fd)
+            continue
+        try:
+            name = lock.name.removesuffix("_el")
+            for file in (shm / name, shm / f"sem.{name}_mutex", lock):
+                try:
+                    file.unlink()
+                    removed.append(file)
+                except FileNotFoundError:
+                    pass
+        finally:
+            os.close(fd)
+    return removed

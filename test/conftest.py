@@ -32,3 +32,10 @@ def ros_node():
     yield node
     node.destroy_node()
     rclpy.shutdown()
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Free the Fast DDS shared memory of the processes the tests killed (on purpose: a crash) and no one holds."""
+    from lip_ros.middleware import remove_stale_shm
+
+    remove_stale_shm(min_age_s=0.0)

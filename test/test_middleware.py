@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-from lip_ros.middleware import PROFILE_ENV, PROFILE_FILE, use_lip_dds_profile
+from lip_ros.middleware import PROFILE_ENV, PROFILE_FILE, remove_stale_shm, use_lip_dds_profile
 from lip_ros.resources import params_path
 
 NS = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
@@ -44,3 +44,27 @@ def test_profile_enlarges_shared_memory_and_leaves_discovery_alone() -> None:
                        "metatrafficUnicastLocatorList", "defaultUnicastLocatorList", "defaultMulticastLocatorList",
                        "interfaceWhiteList", "locator"}
     assert all(d.findtext("p:type", namespaces=NS) == "SHM" for d in root.iterfind(".//p:transport_descriptor", NS))
+
+
+def test_stale_shared_memory_is_removed_and_memory_in_use_is_not(tmp_path) -> None:
+    """A segment whose lock file no one holds (its process was killed) goes, with its port semaphore; one held
+    (a live participant) and one too new (being set up) stay."""
+    import fcntl
+    import os
+
+    for name in ("fastrtps_dead", "fastrtps_live", "fastrtps_port7001", "fastrtps_new"):
+        (tmp_path / name).write_bytes(b"x")
+        (tmp_path / f"{name}_el").touch()
+        os.utime(tmp_path / f"{name}_el", (1.0, 1.0))  # long ago
+    (tmp_path / "sem.fastrtps_port7001_mutex").touch()
+    (tmp_path / "fastrtps_new_el").touch()  # now
+    held = os.open(tmp_path / "fastrtps_live_el", os.O_RDWR)
+    fcntl.flock(held, fcntl.LOCK_EX)
+    try:
+        removed = remove_stale_shm(tmp_path, min_age_s=5.0)
+    finally:
+        os.close(held)
+    assert sorted(p.name for p in removed) == ["fastrtps_dead", "fastrtps_dead_el", "fastrtps_port7001",
+                                               "fastrtps_port7001_el", "sem.fastrtps_port7001_mutex"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fastrtps_live", "fastrtps_live_el", "fastrtps_new",
+                                                          "fastrtps_new_el"]

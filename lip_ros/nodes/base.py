@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import gc
 import re
+import signal
 import sys
 import threading
 from collections import Counter, deque
@@ -39,6 +40,7 @@ from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, Param
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
 
 from lip_msgs_py import (
@@ -56,7 +58,7 @@ from lip_ros.resources import params_path
 __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "non_negative", "numbers", "GraphNode",
            "LatencyWindow", "RELIABLE", "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input", "LATCHED",
            "node_defaults", "check_params_files", "run_nodes", "FrameArrivals", "tf_publisher", "rejection_reason",
-           "SKIPPED"]
+           "SKIPPED", "stop_on_signals"]
 
 #: How ``GraphNode.count_frame`` names a frame that ended without a pose.
 SKIPPED = "skipped"
@@ -436,9 +438,18 @@ def tf_publisher(node: Node) -> Any:
     return node.create_publisher(tf_type, "/tf", RELIABLE)
 
 
-def _spin_each(nodes: Sequence[Node]) -> list[BaseException]:
-    """Spin every node on its own single-threaded executor in its own thread until the context shuts down (or
-    one of them fails, which shuts it down); the exceptions the nodes raised."""
+def stop_on_signals() -> threading.Event:
+    """An event that SIGINT and SIGTERM set (instead of interrupting whatever runs: a callback, a bag write)."""
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    return stop
+
+
+def _spin_each(nodes: Sequence[Node], stop: threading.Event) -> list[BaseException]:
+    """Spin every node on its own single-threaded executor in its own thread until ``stop`` is set (a signal) or
+    one of them ends (a node failed, or the context was shut down); then shut the context down, which ends every
+    spin, and wait for the threads. The exceptions the nodes raised."""
     errors: list[BaseException] = []
 
     def spin(node: Node) -> None:
@@ -449,33 +460,24 @@ def _spin_each(nodes: Sequence[Node]) -> list[BaseException]:
         except ExternalShutdownException:
             pass
         except RuntimeError as exc:
-            # a signal that shuts the context down while spin_once builds its wait set makes rclpy raise
-            # RCLError ("the given context is not valid") rather than ExternalShutdownException: a shutdown
+            # a shutdown while spin_once builds its wait set makes rclpy raise RCLError ("the given context is not
+            # valid") rather than ExternalShutdownException: a shutdown
             if executor.context.ok():
                 errors.append(exc)
-                rclpy.try_shutdown()
         except BaseException as exc:  # noqa: BLE001  (reported by the main thread)
             errors.append(exc)
-            rclpy.try_shutdown()
         finally:
             executor.shutdown()
 
     threads = [threading.Thread(target=spin, args=(n,), name=n.get_name(), daemon=True) for n in nodes]
     for t in threads:
         t.start()
-    try:
-        _join(threads)
-    except KeyboardInterrupt:  # SIGINT: rclpy's handler has shut the context down; the executors end their spin
-        rclpy.try_shutdown()
-        _join(threads)  # no node is destroyed, nor the interpreter left, while a thread is still in a callback
-    return errors
-
-
-def _join(threads: Sequence[threading.Thread]) -> None:
-    """Wait for every thread to end (in short joins, so that a signal reaches the main thread)."""
+    while not stop.wait(0.1) and all(t.is_alive() for t in threads):
+        pass
+    rclpy.try_shutdown()  # from this thread, not from a signal handler's: rclpy's own aborted the process at exit
     for t in threads:
-        while t.is_alive():
-            t.join(timeout=0.2)
+        t.join()
+    return errors
 
 
 def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], GraphNode]],
@@ -486,7 +488,12 @@ def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], Grap
     One single-threaded executor per node (its callbacks one at a time, the
     nodes in parallel) rather than rclpy's ``MultiThreadedExecutor``, which
     measured here spent 12.9 ms of CPU per IMU message against 0.8 ms and
-    so lost most IMU samples at 4 x 60 Hz (docs/lip/graph.md).
+    so lost most IMU samples at 4 x 60 Hz (docs/lip/graph.md). SIGINT and
+    SIGTERM set an event that the main thread waits on; it then shuts the
+    context down and joins the threads before the nodes are destroyed: with
+    rclpy's own signal handlers a node spinning in a thread made the process
+    abort at exit (``terminate called without an active exception``) in most
+    stops while another process was subscribed to it.
     """
     import argparse
 
@@ -495,8 +502,9 @@ def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], Grap
                                      epilog="ROS arguments go after --ros-args (remapping, -p name:=value, "
                                             "--params-file FILE, -p use_sim_time:=true).")
     parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    stop = stop_on_signals()
     use_lip_dds_profile()
-    rclpy.init(args=argv)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[GraphNode] = []
     try:
         check_params_files(argv, {c.NAME: c.parameter_names() for c in classes})
@@ -509,15 +517,14 @@ def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], Grap
     gc.freeze()  # the models and messages types loaded so far are never garbage: keep the collector off them
     sys.setswitchinterval(0.001)  # the threads of a graph take turns on the GIL within a millisecond, not five
     try:
-        errors = _spin_each(nodes)
+        errors = _spin_each(nodes, stop)
     finally:
         _shutdown(nodes)
     for exc in errors:
         if isinstance(exc, TopicTypeError):
             print(f"{prog}: {exc}", file=sys.stderr)
             return 2
-        if not isinstance(exc, KeyboardInterrupt):
-            raise exc
+        raise exc
     return 0
 
 

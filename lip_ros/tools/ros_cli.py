@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -15,6 +13,7 @@ import rclpy
 from rclpy.signals import SignalHandlerOptions
 
 from lip_ros.middleware import use_lip_dds_profile
+from lip_ros.nodes.base import stop_on_signals
 
 __all__ = ["ToolError", "ArgumentParser", "tool_args", "start_ros", "stop_on_signals", "run_tool", "Progress",
            "installed_script"]
@@ -48,14 +47,6 @@ def start_ros(argv: list[str]) -> None:
     """``rclpy.init`` with the package's DDS profile, leaving SIGINT and SIGTERM to :func:`stop_on_signals`."""
     use_lip_dds_profile()
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-
-
-def stop_on_signals() -> threading.Event:
-    """An event that SIGINT and SIGTERM set (instead of interrupting whatever runs, e.g. a bag write)."""
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    return stop
 
 
 def run_tool(prog: str, body: Callable[[list[str]], int], argv: list[str]) -> int:

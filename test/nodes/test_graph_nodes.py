@@ -4,6 +4,7 @@ types. Each node runs as its own process, as ``ros2 run lip_ros <node>`` would s
 from __future__ import annotations
 
 import importlib.util
+import signal
 import subprocess
 import time
 import xml.etree.ElementTree as ET
@@ -166,7 +167,8 @@ def test_a_restarted_graph_resumes_mid_capture(ros_node, tmp_path):
         graph.terminate()
         out = graph.communicate(timeout=10)[0]
         if player.poll() is None:
-            player.kill()
+            player.send_signal(signal.SIGINT)
+            player.wait(timeout=30)
     assert "resuming: the performer was last seen" in out, out
     if importlib.util.find_spec("tf2_msgs") is None:  # no /tf without tf2_msgs: said once, and the graph goes on
         assert "tf2_msgs is not installed: nothing is broadcast on /tf" in out
@@ -200,9 +202,9 @@ def test_segmentation_lock_parameters_are_taken(ros_node):
         _spin_until(ros_node, lambda: "segmentation_node: frames" in statuses, proc)  # started, and running
     finally:
         ros_node.destroy_subscription(sub)
-        proc.kill()
+        proc.send_signal(signal.SIGINT)  # stopped cleanly: a killed node leaves its DDS shared memory behind
         out = proc.communicate(timeout=30)[0]
-    assert "Traceback" not in out and "parameter error" not in out, out
+    assert proc.returncode == 0 and "Traceback" not in out and "parameter error" not in out, out
 
 
 def test_a_lidar_on_another_clock_is_an_error_on_diagnostics(ros_node):
@@ -234,8 +236,9 @@ def test_a_lidar_on_another_clock_is_an_error_on_diagnostics(ros_node):
                     proc)
     finally:
         ros_node.destroy_subscription(sub)
-        proc.kill()
+        proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=30)
+    assert proc.returncode == 0
     status = latest["calibration_node: frames"]
     assert status.level == 2 and status.message.startswith("clocks: the LiDAR frame is stamped -"), status
     assert int(status.values["frames skipped: clocks"]) >= 10
@@ -271,8 +274,9 @@ def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_no
         assert len(calls) == 2  # once per calibration started, not on every check
     finally:
         ros_node.destroy_subscription(sub)
-        proc.kill()
+        proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=30)
+    assert proc.returncode == 0
     assert statuses["calibration_node: frames"].values["DOT heading reset"] == "done: 4 DOTs reset"
     assert statuses["calibration_node: frames"].values["DOT headings"] == "unknown"  # nothing calibrated
     assert (statuses["calibration_node: frames"].values[DOT_LATENCY_VALUE]

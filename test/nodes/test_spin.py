@@ -18,25 +18,39 @@ from lip_ros.nodes.lip import LIP_PARAMS_FILE
 pytestmark = pytest.mark.ros
 
 
-def _spin_one_callback(callback) -> list[BaseException]:
+def _spin_one_callback(callback, stop: threading.Event | None = None) -> list[BaseException]:
     rclpy.init()
     node = rclpy.create_node("lip_ros_test_spin")
     node.create_timer(0.01, callback)
     try:
-        return _spin_each([node])
+        return _spin_each([node], stop or threading.Event())
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
 
 
-def test_a_signal_during_the_wait_set_is_a_clean_shutdown() -> None:
-    """A SIGTERM that shuts the context down while spin_once builds its wait set raises RCLError inside
-    rclpy (seen in CI as a traceback at the end of a run): the same as a shutdown, nothing to report."""
+def test_a_shutdown_during_the_wait_set_is_a_clean_shutdown() -> None:
+    """A shutdown of the context while spin_once builds its wait set raises RCLError inside rclpy (seen in CI as a
+    traceback at the end of a run): the same as a shutdown, nothing to report."""
     def signal_then_wait_set() -> None:
-        rclpy.try_shutdown()  # what rclpy's signal handler does
+        rclpy.try_shutdown()  # a shutdown from elsewhere (e.g. the HSC4D graph's child ended)
         raise RCLError("failed to initialize wait set: the given context is not valid")
 
     assert _spin_one_callback(signal_then_wait_set) == []
+
+
+def test_a_stop_signal_ends_every_spin_cleanly() -> None:
+    """SIGINT or SIGTERM set the stop event (``stop_on_signals``): the main thread shuts the context down, every
+    node's spin ends, nothing is reported."""
+    stop, calls = threading.Event(), []
+
+    def count_then_stop() -> None:
+        calls.append(1)
+        if len(calls) == 3:
+            stop.set()
+
+    assert _spin_one_callback(count_then_stop, stop) == []
+    assert len(calls) >= 3 and not rclpy.ok()
 
 
 def test_a_failing_callback_is_reported_and_stops_the_graph() -> None:
