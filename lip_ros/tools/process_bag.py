@@ -29,6 +29,10 @@ LIP only: the calibration the graph solves is written to
 run refuses to start; ``--calibration FILE`` starts from a calibration on
 purpose (the graph then poses from the first frame, without the A/T-pose).
 The summary says which calibration the run used.
+
+SIGINT or SIGTERM stop the run early: its processes are stopped as at the
+end (SIGINT each), the outputs recorded so far summarised, status 0. Any of
+its processes that does not end with status 0 fails the run (status 2).
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -71,7 +76,15 @@ from lip_ros.nodes.lip.calibration import DOT_LATENCY_VALUE, CalibrationNode
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
 from lip_ros.tools.hsc4d_outputs import Hsc4dAccuracy, hsc4d_accuracy, plot_hsc4d
-from lip_ros.tools.ros_cli import ArgumentParser, ToolError, installed_script, run_tool, start_ros, tool_args
+from lip_ros.tools.ros_cli import (
+    ArgumentParser,
+    ToolError,
+    installed_script,
+    run_tool,
+    start_ros,
+    stop_on_signals,
+    tool_args,
+)
 
 __all__ = ["main", "ProcessSummary", "summarize_outputs", "Branch", "LIP", "HSC4D", "branch_of_bag"]
 
@@ -284,8 +297,9 @@ def plot_outputs(inputs: Path, outputs: Path, png: Path) -> Path:
 class _Watch:
     """What the tool sees of the running graph: when playback started and ended, the last pose, frames accounted."""
 
-    def __init__(self, bag_start_ns: int, rate: float, pose_topic: str) -> None:
+    def __init__(self, bag_start_ns: int, rate: float, pose_topic: str, stop: threading.Event) -> None:
         self.node = rclpy.create_node("lip_process_bag")
+        self.stop = stop  # set by SIGINT or SIGTERM: stop waiting, stop the processes, report what was done
         self.bag_start_ns, self.rate = bag_start_ns, rate
         self.started: float | None = None  # monotonic s at which the player's bag time was bag_start_ns
         self.last_clock: float | None = None
@@ -323,7 +337,7 @@ class _Watch:
     def spin_while(self, busy: Callable[[], bool], timeout_s: float) -> None:
         """Take messages while ``busy()`` and for at most ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
-        while busy() and time.monotonic() < deadline:
+        while busy() and time.monotonic() < deadline and not self.stop.is_set():
             rclpy.spin_once(self.node, timeout_sec=0.1)
 
     def wall_s(self) -> float | None:
@@ -404,9 +418,10 @@ def _run(argv: list[str]) -> int:
         raise ToolError("--refine is for HSC4D bags (the offline refinement of the HSC4D branch)")
     if refined is not None and refined.exists():
         raise ToolError(f"{refined} exists (--refine writes there); choose a new OUT or remove it")
+    stop = stop_on_signals()
     start_ros(argv)
     first_ns, last_ns = bag_span(args.inputs)
-    watch = _Watch(first_ns, args.rate, branch.pose_topic)
+    watch = _Watch(first_ns, args.rate, branch.pose_topic, stop)
     node = subprocess.Popen([installed_script("fusion_node"), "--ros-args", *node_args])
     recorder = subprocess.Popen([installed_script("lip_bag_record"), str(args.outputs), "--topics", *branch.outputs],
                                 stdout=subprocess.DEVNULL)
@@ -416,7 +431,7 @@ def _run(argv: list[str]) -> int:
                                  "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *branch.inputs])
         procs.append(play)
         watch.spin_while(lambda: play.poll() is None, float("inf"))
-        if play.returncode != 0:
+        if play.poll() is not None and play.returncode != 0:
             raise ToolError("lip_bag_play failed")
         watch.spin_while(lambda: watch.accounted < frames_in and node.poll() is None, args.timeout)
 
@@ -424,7 +439,8 @@ def _run(argv: list[str]) -> int:
             return watch.optimising == 0 and (branch is LIP or (watch.pending == 0 and watch.accounted >= frames_in))
 
         watch.spin_while(lambda: not settled() and node.poll() is None, _SETTLE_WAIT_S)
-        time.sleep(1.0)  # one more diagnostics period reaches the recorder
+        if not stop.is_set():
+            time.sleep(1.0)  # one more diagnostics period reaches the recorder
     finally:
         failed = _stop(procs)
         watch.node.destroy_node()
@@ -433,10 +449,13 @@ def _run(argv: list[str]) -> int:
     refinement = "" if refined is None else _refine(args.inputs, refined)
     summary = summarize_outputs(args.inputs, args.outputs, branch, refined if refined and refined.exists() else None)
     summary.refinement = refinement
-    summary.bag_s, summary.wall_s, summary.rate = (last_ns - first_ns) / NS_PER_S, watch.wall_s(), args.rate
+    summary.bag_s, summary.rate = (last_ns - first_ns) / NS_PER_S, args.rate
+    summary.wall_s = None if stop.is_set() else watch.wall_s()  # not a speed when cut short
     if branch is LIP:
         summary.calibration = _calibration_used(calibration, args.calibration)
     print("\n".join(summary.lines()))
+    if stop.is_set():
+        print("interrupted (SIGINT or SIGTERM): the processes were stopped before the end of the bag")
     if args.plot:
         png = (plot_outputs(args.inputs, args.outputs, args.plot) if branch is LIP
                else plot_hsc4d(args.outputs, summary.hsc4d, args.plot))

@@ -163,3 +163,16 @@ def test_a_bag_played_again_is_posed_again_with_the_same_calibration(capture: Pa
                         if s.name == "calibration_node: frames"]
     rewind = np.flatnonzero(np.diff([t for t, _ in calibrating]) < 0)[0]
     assert calibrating[rewind][1] > 10 and calibrating[-1][1] == calibrating[rewind][1]  # none in the second pass
+
+
+def test_lip_process_bag_stops_cleanly_on_sigterm(capture: Path, tmp_path: Path) -> None:
+    """SIGTERM mid-run: the player, graph and recorder are stopped, what was recorded is summarised (a complete
+    bag), status 0, and the summary says it was cut short."""
+    proc = subprocess.Popen([console_script("lip_process_bag"), str(capture), str(tmp_path / "out")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(10.0)  # start-up, then a few seconds of the capture
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err[-3000:]
+    assert "interrupted (SIGINT or SIGTERM)" in out and "Traceback" not in err and "terminate called" not in err
+    assert bag_topics(tmp_path / "out")["/diagnostics"].count > 0  # the recorder closed its bag
