@@ -434,6 +434,16 @@ def print_graph_table(runs: list[GraphRun]) -> None:
         print(f"{name:<{width}}  " + "  ".join(f"{v:>{c}}" for v, c in zip(values, cols)))
 
 
+def save_png(fig: Any, png: Path, dpi: int = 100) -> None:
+    """Lay out a matplotlib figure, write it to ``png`` (its folder made if needed) and close it."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=dpi)
+    plt.close(fig)
+
+
 def plot_graph(runs: list[GraphRun], png: Path) -> None:
     """End-to-end latency per frame and the graph's CPU over the bag's time, one colour per run."""
     import matplotlib
@@ -464,10 +474,7 @@ def plot_graph(runs: list[GraphRun], png: Path) -> None:
     lat.legend(fontsize=7)
     cpu.set(xlabel="time since playback start (s)", ylabel="CPU (% of one core, 1 s bins)")
     cpu.legend(fontsize=7)
-    fig.tight_layout()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=100)
-    plt.close(fig)
+    save_png(fig, png)
 
 
 # ----------------------------------------------------------------------------------------- lip_process_bag runs

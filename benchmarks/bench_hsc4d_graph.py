@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_graph import SAMPLE_S, ProcUsage  # noqa: E402
+from bench_graph import SAMPLE_S, ProcUsage, save_png  # noqa: E402
 
 BIN = Path(sys.executable).parent
 _FIGURES = {
@@ -124,10 +124,7 @@ def _plot(results: dict, png: Path) -> None:
     ax.set(xlabel="time since playback started (min)", ylabel="RSS (MB)", title="HSC4D graph: resident memory")
     ax.set_ylim(bottom=0)
     ax.legend()
-    fig.tight_layout()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=90)
-    plt.close(fig)
+    save_png(fig, png, dpi=90)
 
 
 def main() -> int:

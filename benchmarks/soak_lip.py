@@ -45,6 +45,7 @@ from bench_graph import (
     accounting,
     inputs_received,
     rig_bag,
+    save_png,
     start_process,
     stop_processes,
 )
@@ -225,10 +226,7 @@ def plot(soak: Soak, png: Path) -> None:
         cpu.plot(t[1:], 100 * np.diff(c) / np.diff(t * 60.0), label=name)
     cpu.set(xlabel="minutes", ylabel="CPU (% of one core)")
     cpu.legend(fontsize=8)
-    fig.tight_layout()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=100)
-    plt.close(fig)
+    save_png(fig, png)
 
 
 def main() -> None:
