@@ -18,6 +18,11 @@ its own with ``use_sim_time``, ``diagnostics_period_s:=0.5`` and a fresh
   sent) -> ``/lip/root_pose`` received here (DDS reception timestamp), so the
   transport of the cloud is included; also from WARMUP_S after the first pose,
   when the frames held back during the calibration have been caught up;
+- the transport floor, in the same run: ``floor_node.py`` (its own process)
+  receives each cloud and answers with a PoseStamped; the same end-to-end
+  measure of its answers, over the same window, and the graph's latency above
+  it (p50 and p99); the segmentation and pose nodes' own time per frame
+  (``latency_ms_p50`` of their frames statuses), to see where the rest goes;
 - CPU of each graph process and of the player over playback (first to last
   ``/clock``): % of one core (utime + stime, ``/proc/<pid>/stat``), % waiting
   for a free core (run-queue delay of its threads, ``/proc/<pid>/task/*/schedstat``:
@@ -60,6 +65,7 @@ from typing import Any
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from floor_node import FLOOR_TOPIC
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -77,6 +83,7 @@ GRAPH_ARGS = ("--ros-args", "-p", "use_sim_time:=true", "-p", "diagnostics_perio
               "-p", "calibration_file:={calibration_file}")
 BAG_SECONDS = 14.0
 WARMUP_S = 3.0  # steady state: poses from this long after the first one (the backlog of the calibration is gone)
+FLOOR_CMD = [sys.executable, str(Path(__file__).with_name("floor_node.py"))]  # the pass-through, beside the graph
 DRAIN_S = 15.0  # after playback, wait at most this long for the graph to account for the last frames
 SETTLE_S = 1.2  # then this long for every node's next diagnostics
 STOP_S = 20.0  # SIGINT, then this long before SIGKILL
@@ -223,6 +230,7 @@ class GraphRun:
     frames: dict[str, int]  # "pose", "calibrating", "skipped: <reason>", "pending" -> frames
     graph_latency_ms: dict[str, float]  # from the graph's diagnostics
     e2e_ms: list[tuple[float, float]]  # (s since playback start, cloud published by the player -> pose received ms)
+    floor_e2e_ms: list[tuple[float, float]]  # the same for the pass-through's answer (floor_node.py; [] if not run)
     usage: dict[str, dict[str, float]]  # process -> cpu_pct, wait_pct, rss_mb, hwm_mb
     cpu_timeline: dict[str, tuple[list[float], list[float]]]  # process -> (s since playback start, CPU %)
     bench_cpu_pct: float  # this process over the playback window
@@ -236,16 +244,21 @@ class GraphRun:
         """LiDAR frames in the bag."""
         return self.sent[LIDAR_TOPIC]
 
-    def e2e_stats(self, warmup_s: float | None = None) -> dict[str, float]:
-        """p50, p90, p99, max and count of the end-to-end latencies; with ``warmup_s``, of the poses from that long
-        after the first one."""
-        t, ms = np.array(self.e2e_ms).reshape(-1, 2).T
-        if warmup_s is not None and len(t):
-            ms = ms[t >= t[0] + warmup_s]
+    def e2e_stats(self, warmup_s: float | None = None, floor: bool = False) -> dict[str, float]:
+        """p50, p90, p99, max and count of the end-to-end latencies (``floor``: of the pass-through's); with
+        ``warmup_s``, of the clouds published from that long after the graph's first pose on."""
+        t, ms = np.array(self.floor_e2e_ms if floor else self.e2e_ms).reshape(-1, 2).T
+        if warmup_s is not None and self.e2e_ms:
+            ms = ms[t >= self.e2e_ms[0][0] + warmup_s]
         if not len(ms):
             return {"n": 0}
         p50, p90, p99 = np.percentile(ms, [50, 90, 99])
         return {"p50": p50, "p90": p90, "p99": p99, "max": ms.max(), "n": len(ms)}
+
+    def above_floor(self) -> dict[str, float]:
+        """Steady end-to-end p50 and p99 of the graph less the pass-through's over the same window (ms)."""
+        graph, floor = self.e2e_stats(WARMUP_S), self.e2e_stats(WARMUP_S, floor=True)
+        return {k: graph[k] - floor[k] for k in ("p50", "p99") if k in graph and k in floor}
 
 
 class Watch:
@@ -258,9 +271,14 @@ class Watch:
         self.bench_cpu: list[float] = []  # this process's CPU s at each sample
         self.sample_t: list[float] = []  # monotonic s of each /proc sample (every SAMPLE_S while /clock comes)
         self.poses: list[tuple[int, int]] = []  # (stamp ns, reception timestamp ns)
+        self.floor_poses: list[tuple[int, int]] = []  # ... of the pass-through's answers
         self.statuses: dict[str, Diagnostic] = {}  # status name -> the last one
         self.node.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, CLOCK_QOS)
         self.node.create_subscription(PoseStamped, LIP_TOPICS.root_pose, self._on_pose,
+                                      QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        self.node.create_subscription(PoseStamped, FLOOR_TOPIC,
+                                      lambda msg, info: self.floor_poses.append((read_header(msg)[0],
+                                                                                  info["received_timestamp"])),
                                       QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 100)
 
@@ -295,9 +313,10 @@ def cloud_times(bag: Path) -> tuple[np.ndarray, np.ndarray]:
     return stamps, logs
 
 
-def end_to_end(watch: Watch, stamps: np.ndarray, logs: np.ndarray, first_ns: int,
+def end_to_end(watch: Watch, poses: list[tuple[int, int]], stamps: np.ndarray, logs: np.ndarray, first_ns: int,
                rate: float) -> list[tuple[float, float]]:
-    """Per pose: (s from the start of playback to its cloud's publication, ms from there to the pose's reception).
+    """Per pose of ``poses`` ((stamp, reception) ns): (s from the start of playback to its cloud's publication, ms
+    from there to the pose's reception).
 
     The player publishes the message logged at ``log`` at ``wall0 + (log - first_ns) / rate`` and stamps
     each /clock with the bag time of the moment it is sent; the least delayed /clock gives ``wall0``.
@@ -308,7 +327,7 @@ def end_to_end(watch: Watch, stamps: np.ndarray, logs: np.ndarray, first_ns: int
     wall0 = int(np.min(src - (bag_ns - first_ns) / rate))
     order = np.argsort(stamps)
     out = []
-    for stamp, received in watch.poses:
+    for stamp, received in poses:
         i = np.searchsorted(stamps[order], stamp, side="right") - 1  # the cloud scanned at the pose time
         if i < 0:
             continue
@@ -318,8 +337,10 @@ def end_to_end(watch: Watch, stamps: np.ndarray, logs: np.ndarray, first_ns: int
     return sorted(out)
 
 
-def run_graph(bag: Path, label: str, commands: list[list[str]], rate: float, work: Path) -> GraphRun:
-    """Play ``bag`` into the graph ``commands`` and measure it (the graph is stopped at the end)."""
+def run_graph(bag: Path, label: str, commands: list[list[str]], rate: float, work: Path,
+              floor: bool = True) -> GraphRun:
+    """Play ``bag`` into the graph ``commands`` (and, with ``floor``, the pass-through floor_node.py beside it) and
+    measure it (the graph is stopped at the end)."""
     first_ns, last_ns = bag_span(bag)
     sent = {t: bag_topics(bag)[t].count for t in INPUT_TOPICS}
     progress(f"{label}: reading the cloud stamps of {bag}")
@@ -334,6 +355,9 @@ def run_graph(bag: Path, label: str, commands: list[list[str]], rate: float, wor
             procs.append(start_process(cmd, work / f"{label}_{Path(cmd[0]).name}_{i}.log"))
             usage[name] = ProcUsage(name, procs[-1].pid)
         graph = list(procs)
+        if floor:
+            procs.append(start_process(FLOOR_CMD, work / f"{label}_floor_node.log"))
+            usage["floor_node"] = ProcUsage("floor_node", procs[-1].pid)
         watch = Watch(usage)
         player_log = work / f"{label}_lip_bag_play.log"
         player = start_process([installed_script("lip_bag_play"), str(bag), "--clock", "--wait-for-subscribers",
@@ -375,7 +399,8 @@ def run_graph(bag: Path, label: str, commands: list[list[str]], rate: float, wor
     return GraphRun(
         label=label, bag=str(bag), bag_s=(last_ns - first_ns) / 1e9, rate=rate, commands=commands, sent=sent,
         received=inputs_received(watch.statuses, INPUT_TOPICS), frames=frames, graph_latency_ms=graph_latency,
-        e2e_ms=end_to_end(watch, stamps, logs, first_ns, rate),
+        e2e_ms=end_to_end(watch, watch.poses, stamps, logs, first_ns, rate),
+        floor_e2e_ms=end_to_end(watch, watch.floor_poses, stamps, logs, first_ns, rate),
         usage={n: u.summary(start, end) for n, u in usage.items()},
         cpu_timeline={n: tuple(a.tolist() for a in u.cpu_timeline(start, end)) for n, u in usage.items()},
         bench_cpu_pct=100 * (watch.bench_cpu[-1] - watch.bench_cpu[0]) / max(end - start, 1e-9),
@@ -419,6 +444,11 @@ def print_graph_table(runs: list[GraphRun]) -> None:
         ("graph latency ms p50/p90/p99/max", [_fmt(r.graph_latency_ms) for r in runs]),
         ("end-to-end ms p50/p90/p99/max", [_fmt(r.e2e_stats()) for r in runs]),
         (f"  same, from {WARMUP_S:g} s after 1st pose", [_fmt(r.e2e_stats(WARMUP_S)) for r in runs]),
+        ("floor (pass-through) end-to-end, same window", [_fmt(r.e2e_stats(WARMUP_S, floor=True)) for r in runs]),
+        ("graph above the floor ms p50 / p99", [" / ".join(f"{v:.1f}" for v in r.above_floor().values()) or "n/a"
+                                                for r in runs]),
+        ("stages ms p50: segmentation / pose", [" / ".join(r.statuses.get(f"{node}: frames", {}).get(
+            "latency_ms_p50", "-") for node in ("segmentation_node", "pose_node")) for r in runs]),
     ]
     for name in dict.fromkeys(n for r in runs for n in r.usage):
         rows.append((f"{name} CPU % / wait % / RSS / peak MB",
@@ -539,6 +569,7 @@ def main() -> None:
     p.add_argument("--bag", type=Path, action="append",
                    help="graph: play these bags instead of rig captures; process-bag: the bag (default demo_walk)")
     p.add_argument("--rate", type=float, default=1.0, help="graph: playback speed factor")
+    p.add_argument("--no-floor", action="store_true", help="graph: without the pass-through floor_node.py beside it")
     p.add_argument("--rates", type=float, nargs="+", default=[1.0, 3.0, 4.0], help="process-bag: speed factors")
     p.add_argument("--json", type=Path, help="write the results here")
     p.add_argument("--plot", type=Path, help="graph: write a PNG of latency and CPU over time here")
@@ -571,7 +602,7 @@ def main() -> None:
                 for label, bag in bags.items():
                     calibration = work / f"{label.replace(' ', '_')}_calibration.yaml"
                     runs.append(run_graph(bag, label, graph_commands(args.graph, args.graph_cmd, calibration),
-                                          args.rate, work))
+                                          args.rate, work, floor=not args.no_floor))
             finally:
                 rclpy.try_shutdown()
             graph = " | ".join(shlex.join(c) for c in runs[0].commands) if args.graph_cmd else " + ".join(
@@ -583,7 +614,9 @@ def main() -> None:
                 plot_graph(runs, args.plot)
                 print(f"plot: {args.plot}")
             results = {"header": header, "runs": [{**asdict(r), "e2e_stats": r.e2e_stats(),
-                                                   "e2e_stats_steady": r.e2e_stats(WARMUP_S)} for r in runs]}
+                                                   "e2e_stats_steady": r.e2e_stats(WARMUP_S),
+                                                   "floor_stats_steady": r.e2e_stats(WARMUP_S, floor=True),
+                                                   "above_floor": r.above_floor()} for r in runs]}
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=1, default=float))

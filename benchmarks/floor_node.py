@@ -1,0 +1,59 @@
+"""The transport floor of the LIP graph: a node that only receives the Ouster cloud and publishes a PoseStamped.
+
+It subscribes to the cloud as ``segmentation_node`` does (SensorDataQoS, the
+message deserialised by rclpy), and publishes on :data:`FLOOR_TOPIC` an
+identity PoseStamped with the cloud's header (reliable, as ``/lip/root_pose``).
+``bench_graph.py`` starts it beside the graph in the same run: the latency from
+the player's publication to this pose's reception is what any node pays to
+receive a cloud and answer, whatever it computes; the graph's latency above it
+is the graph's own (the method, its hops between nodes, its waiting).
+
+Run: python benchmarks/floor_node.py [--ros-args ...]   (bench_graph.py does)
+"""
+
+from __future__ import annotations
+
+import sys
+
+import rclpy
+from geometry_msgs.msg import PoseStamped
+from rclpy.executors import ExternalShutdownException
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2
+
+from lip_ros.lip.sensors import LIDAR_TOPIC
+from lip_ros.middleware import use_lip_dds_profile
+
+__all__ = ["FLOOR_TOPIC", "main"]
+
+#: Where the pass-through answers each cloud.
+FLOOR_TOPIC = "/bench/floor_pose"
+
+
+def main() -> int:
+    """Pass clouds through until SIGINT."""
+    use_lip_dds_profile()
+    rclpy.init(args=sys.argv)
+    node = rclpy.create_node("floor_node")
+    pub = node.create_publisher(PoseStamped, FLOOR_TOPIC, QoSProfile(depth=10,
+                                                                      reliability=ReliabilityPolicy.RELIABLE))
+
+    def answer(cloud: PointCloud2) -> None:
+        pose = PoseStamped()
+        pose.header = cloud.header
+        pose.pose.orientation.w = 1.0
+        pub.publish(pose)
+
+    node.create_subscription(PointCloud2, LIDAR_TOPIC, answer, qos_profile_sensor_data)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
