@@ -2,14 +2,20 @@
 
 A stream's stamps only ever grow, but for messages a transport delivers out of
 order (a few ms). A stamp more than :data:`CLOCK_STEP_NS` behind the newest one
-of its stream is taken as the clock having stepped back: what was buffered on
-the old time line is let go (keeping what does not depend on time, such as a
-calibration) and the stream starts again from that stamp.
+of its stream is taken as the clock having stepped back. The LIP branch lets go
+of what was buffered on the old time line (keeping what does not depend on
+time, such as a calibration) and starts the stream again from that stamp. The
+HSC4D branch, whose state is built along time (a trajectory, a pose graph, the
+suit's buffers), keeps one time line instead: :class:`SteppingClock` moves the
+stamps after a step on by its size, so that the time line goes on where it
+was, and takes times on it back to the clock's reading for the outputs.
 """
 
 from __future__ import annotations
 
-__all__ = ["CLOCK_STEP_NS", "stepped_back"]
+from bisect import bisect_right
+
+__all__ = ["CLOCK_STEP_NS", "stepped_back", "SteppingClock"]
 
 #: a stamp this far behind its stream's newest is a clock that stepped back, not a message out of order
 CLOCK_STEP_NS = 500_000_000
@@ -21,3 +27,51 @@ def stepped_back(stamp_ns: int, newest_ns: int | None, tolerance_ns: int = CLOCK
     if newest_ns is None or newest_ns - stamp_ns <= tolerance_ns:
         return 0
     return int(newest_ns - stamp_ns)
+
+
+class SteppingClock:
+    """One clock's streams (the suit's IMUs and odometry; a LiDAR) on a time line that goes on across the clock's
+    steps back.
+
+    A stream whose stamp falls more than :data:`CLOCK_STEP_NS` behind its own newest has met a step, once the next
+    one does too (a single stale message is only refused): from then on its stamps are moved on by the step's size
+    (its newest stamp less the first stamp after the step, plus the stream's spacing), so that :meth:`internal`
+    goes on one spacing after where it was. The other streams of the clock cross the same step, of the same size,
+    when their stamps fall back too. Steps ahead are not undone: they look like a gap, which they also are for the
+    data.
+    """
+
+    def __init__(self) -> None:
+        self.steps_ns: list[int] = []  #: the steps back seen (their sizes, ns), oldest first
+        self._starts: list[int] = []  # the internal time each step took effect at
+        self._shifts: list[int] = [0]  # what the stamps are moved on by after 0, 1, ... steps
+        # stream -> newest stamp, spacing, steps crossed, the stamp far behind it not confirmed yet (or None)
+        self._streams: dict[str, tuple[int, int, int, int | None]] = {}
+
+    def internal(self, stream: str, stamp_ns: int) -> int | None:
+        """The time of ``stream``'s stamp on the time line; None for a stamp far behind the stream's newest that
+        the stream has not confirmed as a step yet (refuse that message)."""
+        newest, spacing, crossed, stale = self._streams.get(stream, (None, 0, 0, None))
+        if newest is None:
+            self._streams[stream] = (stamp_ns, 0, 0, None)
+            return stamp_ns + self._shifts[0]
+        if not stepped_back(stamp_ns, newest):
+            if stamp_ns > newest:
+                spacing, newest = stamp_ns - newest, stamp_ns
+            self._streams[stream] = (newest, spacing, crossed, None)
+            return stamp_ns + self._shifts[crossed]
+        if stale is None:  # the first stamp that far back: a stale message, or a step the next one confirms
+            self._streams[stream] = (newest, spacing, crossed, stamp_ns)
+            return None
+        if crossed == len(self.steps_ns):  # the first of the clock's streams past this step
+            size = newest + spacing - min(stale, stamp_ns)
+            self.steps_ns.append(size)
+            self._shifts.append(self._shifts[-1] + size)
+            self._starts.append(min(stale, stamp_ns) + self._shifts[-1])
+        crossed += 1
+        self._streams[stream] = (stamp_ns, spacing, crossed, None)
+        return stamp_ns + self._shifts[crossed]
+
+    def external(self, internal_ns: int) -> int:
+        """A time of the time line as the clock read it then (the stamp its sensor gave that moment)."""
+        return internal_ns - self._shifts[bisect_right(self._starts, internal_ns)]

@@ -179,6 +179,11 @@ class OdometryStep:
 NOT_REGISTERED = "not registered: posed by the suit's motion (registration rate cap)"
 #: a sweep is registered once this share of the cap's period has passed since the last registered one (stamps jitter)
 _RATE_SLACK = 0.8
+#: the constant-velocity model carries the last motion this long at most: across a longer gap in the sweeps (a
+#: LiDAR outage, the clock stepping ahead) the suit tells the horizontal motion and the rest is not guessed
+_MAX_EXTRAPOLATION_S = 1.0
+#: ... and the correction a registration may make grows at this speed beyond it (the motion nobody saw)
+_GAP_DRIFT_MPS = 0.5
 
 
 def _se3(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
@@ -218,11 +223,17 @@ class LidarOdometry:
         """(M, 3) the local map's points in O."""
         return self._map.point_cloud()
 
-    def _rotations(self, point_ns: np.ndarray, stamp_ns: int, rotation: SweepRotation | None) -> np.ndarray:
-        """R_Lref_L (N, 3, 3) at the points' times: from ``rotation`` where it knows them, else at the constant
-        rate of the last sweep-to-sweep rotation."""
+    def _rotations(self, point_ns: np.ndarray, stamp_ns: int, rotation: SweepRotation | None,
+                   suit: SuitTrack | None = None) -> np.ndarray:
+        """R_Lref_L (N, 3, 3) at the points' times: from ``rotation`` where it knows them, else at a constant
+        rate: the suit odometry's turn over the points' span where it knows it (the pelvis IMU silent), else
+        the last sweep-to-sweep rotation's."""
         tau = (point_ns - stamp_ns) * 1e-9
         rate = matrix_to_axis_angle(self._delta[:3, :3]) / self._delta_s if self._delta_s > 0.0 else np.zeros(3)
+        span = (int(point_ns.min()), int(point_ns.max())) if point_ns.size else (0, 0)
+        turn = suit.lidar_motion(*span) if suit is not None and span[1] > span[0] else None
+        if turn is not None:
+            rate = matrix_to_axis_angle(turn[:3, :3]) / ((span[1] - span[0]) * 1e-9)
         out = axis_angle_to_matrix(tau[:, None] * rate)
         if rotation is not None:
             given = rotation(point_ns, stamp_ns)
@@ -231,13 +242,14 @@ class LidarOdometry:
         return out
 
     def deskew(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int,
-               rotation: SweepRotation | None = None) -> np.ndarray:
+               rotation: SweepRotation | None = None, suit: SuitTrack | None = None) -> np.ndarray:
         """(N, 3) points seen at their own times ``point_ns`` moved to the sensor frame at ``stamp_ns``: rotated
-        as the sensor turned (``rotation``, or the constant-velocity model) and shifted at the last velocity.
+        as the sensor turned (``rotation``, else at the suit odometry's rate, else the constant-velocity model)
+        and shifted at the last velocity.
         The rotations are found once per distinct time (a column fires all its beams at once)."""
         velocity = self._delta[:3, 3] / self._delta_s if self._delta_s > 0.0 else np.zeros(3)
         times, which = np.unique(point_ns, return_inverse=True)
-        rot = self._rotations(times, stamp_ns, rotation)
+        rot = self._rotations(times, stamp_ns, rotation, suit)
         moved = np.einsum("nab,nb->na", rot[which], points)
         return moved + ((times[which] - stamp_ns) * 1e-9)[:, None] * velocity
 
@@ -264,7 +276,7 @@ class LidarOdometry:
         point_ns = np.asarray(point_ns, dtype=np.int64)
         range_sq = np.einsum("na,na->n", points, points)
         keep = (range_sq >= c.min_range_m**2) & (range_sq <= c.max_range_m**2) & self.wearer.keep(points)
-        frame = self.deskew(points[keep], point_ns[keep], stamp_ns, rotation)
+        frame = self.deskew(points[keep], point_ns[keep], stamp_ns, rotation, suit)
         frame_down = voxel_down_sample(frame, 0.5 * c.voxel_size_m)
         source = voxel_down_sample(frame_down, 1.5 * c.voxel_size_m)
         if self._map.empty():
@@ -276,8 +288,9 @@ class LidarOdometry:
         deviation = np.linalg.inv(guess) @ pose
         correction_m = float(np.linalg.norm(deviation[:3, 3]))
         rejected = ""
-        if correction_m > c.max_correction_m:
-            rejected = f"correction {correction_m:.2f} m > {c.max_correction_m} m"
+        max_correction_m = c.max_correction_m + _GAP_DRIFT_MPS * max(0.0, dt - _MAX_EXTRAPOLATION_S)
+        if correction_m > max_correction_m:
+            rejected = f"correction {correction_m:.2f} m > {max_correction_m:.2f} m"
         elif suit_motion is not None:  # the motion since the last registered sweep (the last, without a cap)
             since_ns = self._stamp_ns if self._registered_ns is None else self._registered_ns
             if since_ns != self._stamp_ns:
@@ -306,17 +319,21 @@ class LidarOdometry:
 
     def _guess(self, stamp_ns: int, dt: float, rotation: SweepRotation | None, suit: SuitTrack | None,
                vertical: VerticalShift | None) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
-        """The predicted pose T_O_L at ``stamp_ns``, ``dt`` s after the last sweep: the IMU's rotation, the suit's
-        horizontal motion and the IMU's vertical where known, else the motion between the last two registered
-        sweeps at the same rate; and the suit's
+        """The predicted pose T_O_L at ``stamp_ns``, ``dt`` s after the last sweep: the IMU's rotation (else the
+        suit odometry's), the suit's horizontal motion and the IMU's vertical where known, else the motion between
+        the last two registered sweeps at the same rate, for at most ``_MAX_EXTRAPOLATION_S``; and the suit's
         horizontal motion and up (None if unknown)."""
         turn = self._delta[:3, :3]
+        scale = min(dt, _MAX_EXTRAPOLATION_S) / self._delta_s if self._delta_s > 0.0 else 0.0
         if self._delta_s > 0.0:  # constant velocity, scaled to this sweep's interval
-            turn = axis_angle_to_matrix(matrix_to_axis_angle(turn) * dt / self._delta_s)
+            turn = axis_angle_to_matrix(matrix_to_axis_angle(turn) * scale)
         if rotation is not None and self._stamp_ns is not None:
             given = rotation(np.array([stamp_ns], dtype=np.int64), self._stamp_ns)[0]
-            turn = given if np.isfinite(given).all() else turn
-        shift = self._delta[:3, 3] * (dt / self._delta_s) if self._delta_s > 0.0 else np.zeros(3)
+            if np.isfinite(given).all():
+                turn = given
+            elif suit is not None and (motion := suit.lidar_motion(self._stamp_ns, stamp_ns)) is not None:
+                turn = motion[:3, :3]  # the pelvis IMU silent: the suit odometry's turn
+        shift = self._delta[:3, 3] * scale
         suit_motion = None
         if suit is not None and self._stamp_ns is not None:
             suit_motion = suit.horizontal_motion(self._stamp_ns, stamp_ns)

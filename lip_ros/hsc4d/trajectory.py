@@ -60,6 +60,9 @@ from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
 
 __all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline", "RATE_CAPPED"]
 
+#: :meth:`TrajectoryPipeline.suit_covers` looks for gaps in the pelvis samples this finely (below their largest
+#: bridged gap, 50 ms)
+_COVER_STEP_NS = 20_000_000
 #: :attr:`TrajectoryPipeline.counts` key of the sweeps the odometry posed by the suit's motion under its rate cap
 RATE_CAPPED = "sweeps posed by the suit's motion (registration rate cap)"
 
@@ -221,6 +224,16 @@ class TrajectoryPipeline:
     def waiting(self) -> int:
         """Sweeps taken but not output yet: held for the jump, or registered before the map frame was fixed."""
         return len(self._held) + len(self._pending)
+
+    def suit_covers(self, t0_ns: int, t1_ns: int) -> bool:
+        """Whether the suit's samples cover the LiDAR-clock span [``t0_ns``, ``t1_ns``] (a sweep's points): the
+        pelvis orientation known all along it (no gap wider than its buffer bridges: samples that arrive late or
+        out of order may still fill one) and the suit's odometry at its end. True before the clock offset is known
+        (the sweeps are held until then)."""
+        if self.offset_ns is None:
+            return True
+        t = np.linspace(t0_ns, t1_ns, max(2, int(np.ceil((t1_ns - t0_ns) / _COVER_STEP_NS)) + 1)).astype(np.int64)
+        return bool(np.isfinite(self.rotation.rotation_of_lidar(t)).all()) and self.suit.pelvis(int(t1_ns)) is not None
 
     def add_to_map(self, step: TrajectoryStep) -> int:
         """Put an output's deskewed points in the site map, placed by its odometry pose T_map_L; its index in the

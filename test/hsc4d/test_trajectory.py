@@ -143,3 +143,27 @@ def test_without_a_jump_the_pipeline_holds_a_bounded_number_of_sweeps_and_says_w
     assert pipeline.add_pelvis_imu(nan_imu) is not None and not pipeline.jump._suit
     with pytest.raises(ValueError):
         pipeline.add_sweep(points, np.full(len(points), 10**18), 10**18)
+
+
+def test_the_suit_covers_a_sweep_only_without_gaps_in_its_pelvis_samples():
+    """A sweep waits until the pelvis samples cover it all along, not only until the newest is past its end: after
+    a window of samples 300 ms late, on-time samples arrive before the late ones."""
+    from lip_msgs_py import imu_sample
+
+    pipeline = TrajectoryPipeline()
+    offset = 400_000_000  # the suit's clock ahead of the LiDAR's
+    pipeline.jump.offset_ns = offset
+    pipeline.rotation.set_offset(offset)
+    pipeline.suit.set_offset(offset)
+    ms = 1_000_000
+    sweep = (1000 * ms, 1100 * ms)  # LiDAR clock
+    for t in range(1000, 1600, 10):  # suit clock (ms)
+        assert pipeline.add_suit_odometry(t * ms, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])) is None
+    late = set(range(1300, 1460, 10))  # these pelvis samples come last
+    for t in [t for t in range(1000, 1600, 10) if t not in late] + sorted(late):
+        if t == min(late):  # the newest samples are past the sweep, the late ones missing
+            assert not pipeline.suit_covers(*sweep)
+        assert pipeline.add_pelvis_imu(imu_sample(t * ms, "pelvis", quat=(0.0, 0.0, 0.0, 1.0), gyro=(0.0, 0.0, 0.0),
+                                                  accel=(0.0, 0.0, 9.81))) is None
+    assert pipeline.suit_covers(*sweep)
+    assert not pipeline.suit_covers(1100 * ms, 1300 * ms)  # past the newest samples

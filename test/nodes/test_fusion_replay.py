@@ -7,14 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import DEMO_BAG, console_script
+from helpers import DEMO_BAG, assert_poses_match_the_batch_core, console_script
 
 from lip_msgs_py import msg_to_diagnostics, msg_to_joint_state, msg_to_pose_stamped
 from lip_ros.bagio import bag_topics, read_messages
 from lip_ros.core.skeleton import joint_state_names, load_skeleton
-from lip_ros.lip.batch import replay_bag
-from lip_ros.lip.nets.lip_model import LipModel
-from lip_ros.lip.pipeline import LipPipeline, Outcome
 from lip_ros.lip.surface_fit import SurfaceFitter
 
 pytestmark = pytest.mark.ros  # DDS traffic or subprocesses
@@ -71,14 +68,7 @@ def test_the_pose_node_reports_the_performers_shape(replay: tuple[Path, str]) ->
 
 def test_graph_agrees_with_the_batch_core(replay: tuple[Path, str]) -> None:
     """The same bag through ``lip_ros.lip.batch.replay_bag`` (no DDS): the same frames get poses, the same poses."""
-    live = {p.stamp_ns: p for p in map(msg_to_pose_stamped, (m.msg for m in read_messages(replay[0],
-                                                                                           ["/lip/root_pose"])))}
-    batch = {r.pose.stamp_ns: r.pose for r in replay_bag(LipPipeline(LipModel.load()), DEMO_BAG)
-             if r.outcome == Outcome.POSE}
-    common = sorted(set(live) & set(batch))
-    assert len(common) >= 0.95 * max(len(live), len(batch)), (len(live), len(batch), len(common))
-    diff = np.array([np.linalg.norm(live[t].position - batch[t].root_pos) for t in common])
-    assert np.median(diff) < 1e-4 and np.percentile(diff, 95) < 0.01, (np.median(diff), diff.max())
+    assert_poses_match_the_batch_core(replay[0])
 
 
 def test_outputs_are_stamped_when_scanned_and_track_the_truth(replay: tuple[Path, str]) -> None:

@@ -227,3 +227,65 @@ def test_a_slow_consumer_of_the_outputs_does_not_slow_the_graph(tmp_path: Path) 
     assert summary.latency_ms["p50"] < 60 and summary.latency_ms["p90"] < 120, summary.latency_ms
     received = int(out.split("received")[-1])
     assert received > 30, (out, err[-2000:])  # it was subscribed and served, at its own pace
+
+
+def test_a_graph_killed_during_a_fault_resumes_with_what_it_saved(capture: Path, tmp_path: Path, ros_node) -> None:
+    """fusion_node killed (SIGKILL, a crash) while a DOT is silent, and started again: it resumes at once with the
+    calibration and the performer's position it saved (the calibration poses are long past), and poses the rest of
+    the faulty capture, its later faults handled as in one run."""
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rosgraph_msgs.msg import Clock
+
+    from lip_ros.bagio import bag_span
+    from lip_ros.nodes.base import RELIABLE
+
+    bag = tmp_path / "sensors"
+    write_faulty_bag(capture, bag, [FaultSpec(kind, *window) for kind, (window, _) in SENSOR_FAULTS.items()], seed=5)
+    start_ns = bag_span(bag)[0]
+    kill_at_ns = start_ns + 12 * 10**9  # imu_silent: 11-14 s
+    args = ["--ros-args", "-p", "use_sim_time:=true", "-p", f"calibration_file:={tmp_path / 'calibration.yaml'}",
+            "-p", f"performer_file:={tmp_path / 'performer.yaml'}"]
+    clock, poses, run = [0], [], [0]  # poses: (stamp, position, run)
+    ros_node.create_subscription(Clock, "/clock", lambda m: clock.__setitem__(0, m.clock.sec * 10**9
+                                                                                + m.clock.nanosec), CLOCK_QOS)
+    ros_node.create_subscription(PoseStamped, LIP_TOPICS.root_pose, lambda m: poses.append((
+        msg_to_pose_stamped(m).stamp_ns, msg_to_pose_stamped(m).position, run[0])), RELIABLE)
+
+    def start() -> subprocess.Popen:
+        return subprocess.Popen([console_script("fusion_node"), *args], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)
+
+    graph = start()
+    player = subprocess.Popen([console_script("lip_bag_play"), str(bag), "--clock", "--wait-for-subscribers",
+                               "--topics", *INPUT_TOPICS], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    logs = []
+    try:
+        deadline = time.monotonic() + 120.0
+        while clock[0] < kill_at_ns and time.monotonic() < deadline:
+            rclpy.spin_once(ros_node, timeout_sec=0.1)
+        assert clock[0] >= kill_at_ns, "the player did not get 12 s into the capture"
+        graph.kill()  # a crash: nothing saved at exit
+        logs.append(graph.communicate(timeout=10)[0])
+        run[0], killed_at = 1, clock[0]
+        graph = start()
+        while player.poll() is None and time.monotonic() < deadline:
+            rclpy.spin_once(ros_node, timeout_sec=0.1)
+        end = time.monotonic() + 3.0  # the last frames through the graph
+        while time.monotonic() < end:
+            rclpy.spin_once(ros_node, timeout_sec=0.1)
+    finally:
+        graph.send_signal(signal.SIGINT)
+        logs.append(graph.communicate(timeout=30)[0])
+        if player.poll() is None:
+            player.send_signal(signal.SIGINT)
+            player.wait(timeout=30)
+    assert graph.returncode == 0, logs[-1][-3000:]
+    assert not any("Traceback" in log or "terminate called" in log for log in logs), logs[-1][-3000:]
+    assert "resuming: the performer was last seen" in logs[1], logs[1][-3000:]
+    after = [(stamp, position) for stamp, position, r in poses if r == 1]
+    assert np.isfinite(np.array([p for _, p in after])).all()
+    # started again (a few seconds of start-up), it poses the next frame it can: the first within 6 s of the kill,
+    # and then all but the frames the later faults hit (about 70 of the 150 left)
+    assert after and after[0][0] - killed_at < 6 * 10**9, (len(after), after[0][0] - killed_at if after else None)
+    assert len(after) >= 50, len(after)

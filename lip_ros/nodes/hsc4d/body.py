@@ -34,13 +34,18 @@ capture). Frames that cannot be
 optimised (no suit odometry near them; no map, or no ground under the first
 window's feet by then or at the end) are counted by reason on
 ``/diagnostics``.
+
+The LiDAR's and the suit's clocks may step back (a PTP step): the node keeps
+each on its own time line as the trajectory node does
+(:class:`lip_ros.core.clock.SteppingClock`), matches the suit's samples to the
+poses there, and stamps its outputs with the stamps of the fused poses.
 """
 
 from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -59,6 +64,7 @@ from lip_msgs_py import (
     rclpy_message_class,
 )
 from lip_msgs_py.cdr import cdr_stamp, imu_samples
+from lip_ros.core.clock import SteppingClock
 from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_runtime import set_threads
@@ -95,6 +101,18 @@ def _segment_topics(value: Any) -> str | None:
     n = len(load_skeleton().suit_imus)
     ok = isinstance(value, (list, tuple)) and len(value) == n and all(isinstance(v, str) and v for v in value)
     return None if ok else f"must list {n} topics (the skeleton's suit_imus, in order), got {value!r}"
+
+
+@dataclass
+class _FusedPose:
+    """A fused pelvis pose waiting for the suit's samples."""
+
+    stamp_ns: int  # as received and published: the LiDAR's clock
+    line_ns: int  # on the node's LiDAR time line (:class:`SteppingClock`), where the suit's samples are matched
+    frame_id: str
+    T_map_P: np.ndarray
+    received: float  # monotonic s
+    deadline: float  # it goes on with the suit data there is then (monotonic s)
 
 
 class BodyNode(GraphNode):
@@ -137,8 +155,8 @@ class BodyNode(GraphNode):
             raise ParameterError(str(exc)) from exc
         self._scale_from_height = p["body_scale"] == 0
         self._offset_ns: int | None = None
-        # stamp, frame, T_map_P, received, and when it goes on with the suit data there is (monotonic s)
-        self._waiting: deque[tuple[int, str, np.ndarray, float, float]] = deque()
+        self._waiting: deque[_FusedPose] = deque()
+        self._lidar_clock, self._suit_clock = SteppingClock(), SteppingClock()  # time lines across clock steps
         self._degraded = 0
         self._latency = LatencyWindow()  # fused pose received -> body published
         self._out = self._pose_publishers(HSC4D_TOPICS)
@@ -164,7 +182,8 @@ class BodyNode(GraphNode):
         self.create_subscription(Int64, p["offset_topic"], self._on_offset, LATCHED, callback_group=self.group)
         self.add_input("fused odometry", p["odometry_topic"], Odometry, p["lidar_rate_hz"], self._on_odometry,
                        FUSED_ODOMETRY_QOS)
-        self._raw: dict[str, list[bytes]] = {s: [] for s in self.body.segments}  # not decoded yet
+        # not decoded yet: each sample's bytes and what its stamp is moved on by on the suit's time line
+        self._raw: dict[str, list[tuple[bytes, int]]] = {s: [] for s in self.body.segments}
         self._newest: dict[str, int] = {}  # each segment's newest stamp received
         self._arrived: dict[str, float] = {}  # ... and when its last sample came (monotonic s)
         self._rejected: Counter[str] = Counter()  # suit samples, by reason
@@ -193,11 +212,12 @@ class BodyNode(GraphNode):
         norm = float(np.linalg.norm(odometry.quat))
         if not (np.isfinite(odometry.position).all() and np.isfinite(norm) and norm > 0.5):
             raise MalformedMessageError("non-finite position or degenerate quaternion")
-        if self._suit_stamps and odometry.stamp_ns <= self._suit_stamps[-1]:
+        line_ns = self._on_line(self._suit_clock, "suit odometry", odometry.stamp_ns)
+        if self._suit_stamps and line_ns <= self._suit_stamps[-1]:
             raise MalformedMessageError("not after the last sample")
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat / norm), odometry.position
-        self._suit_stamps.append(odometry.stamp_ns)
+        self._suit_stamps.append(line_ns)
         self._suit_poses.append(T)
         return odometry.stamp_ns
 
@@ -210,9 +230,22 @@ class BodyNode(GraphNode):
         k = k - 1 if k > 0 and abs(stamps[k - 1] - suit_ns) < abs(stamps[k] - suit_ns) else k
         return self._suit_poses[k] if abs(stamps[k] - suit_ns) <= self.params["max_imu_gap_s"] * 1e9 else None
 
-    def _optimise_frame(self, stamp_ns: int, frame_id: str, T_map_P: np.ndarray, pose: BodyPose) -> None:
+    def _on_line(self, clock: SteppingClock, stream: str, stamp_ns: int) -> int:
+        """``stream``'s stamp on ``clock``'s time line; a step back is logged; MalformedMessageError for a stamp
+        far behind, not confirmed as a step yet."""
+        steps = len(clock.steps_ns)
+        line_ns = clock.internal(stream, stamp_ns)
+        if line_ns is None:
+            raise MalformedMessageError("far behind the last message (a clock step if the next one is too)")
+        if len(clock.steps_ns) > steps:
+            self.get_logger().warning(f"{stream}: its clock stepped back {clock.steps_ns[-1] * 1e-9:.3f} s: the "
+                                      "poses go on, its stamps moved on by the step")
+        return line_ns
+
+    def _optimise_frame(self, fused: _FusedPose, pose: BodyPose) -> None:
         """Give one posed frame to the optimiser (with the suit's own feet); optimise a full window."""
-        suit_ns = stamp_ns + self._offset_ns
+        stamp_ns, line_ns, frame_id, T_map_P = fused.stamp_ns, fused.line_ns, fused.frame_id, fused.T_map_P
+        suit_ns = line_ns + self._offset_ns
         T_suit = self._suit_pose(suit_ns)
         if T_suit is None and self.take_waiting("suit odometry"):  # polled: taken at the drain's pace
             T_suit = self._suit_pose(suit_ns)
@@ -224,7 +257,7 @@ class BodyNode(GraphNode):
         if len(optimiser) >= optimiser.capacity:  # the oldest window waited in vain as long as it may
             self._skip(optimiser.config.window, "no map yet" if self._map is None else "no ground under the feet of "
                        "the first window (no sole height)")
-        optimiser.add(stamp_ns * 1e-9, T_map_P, pose.joints[self._feet], T_suit[:3, 3], suit.joints[self._feet])
+        optimiser.add(line_ns * 1e-9, T_map_P, pose.joints[self._feet], T_suit[:3, 3], suit.joints[self._feet])
         self._window.append((stamp_ns, frame_id, pose, T_map_P))
         if optimiser.full:
             self._optimise()
@@ -258,7 +291,8 @@ class BodyNode(GraphNode):
         """This callback held the node for ``seconds``: the suit's samples could not come in meanwhile, so the poses
         waiting for them wait that much longer, rather than go on with a gap the samples still queued would fill (a
         CI run lost 2 poses to "suit data missing" right after the first window)."""
-        self._waiting = deque((*w[:4], w[4] + seconds) for w in self._waiting)
+        for fused in self._waiting:
+            fused.deadline += seconds
         self._arrived = {segment: at + seconds for segment, at in self._arrived.items()}
 
     def _publish_optimised(self, t: np.ndarray, R: np.ndarray) -> None:
@@ -283,11 +317,12 @@ class BodyNode(GraphNode):
     def _on_imu(self, segment: str, data: bytes) -> int:
         """Keep a suit sample's bytes (decoded in a batch when a pose needs them) and its stamp."""
         stamp_ns = cdr_stamp(data)
+        line_ns = self._on_line(self._suit_clock, segment, stamp_ns)
         raw = self._raw[segment]
-        raw.append(data)
+        raw.append((data, line_ns - stamp_ns))
         if len(raw) > self.body.config.capacity:  # no pose asked for a while: keep the newest
             del raw[: len(raw) - self.body.config.capacity]
-        self._newest[segment] = max(stamp_ns, self._newest.get(segment, stamp_ns))
+        self._newest[segment] = max(line_ns, self._newest.get(segment, line_ns))
         self._arrived[segment] = time.monotonic()
         return stamp_ns
 
@@ -297,11 +332,13 @@ class BodyNode(GraphNode):
             if not raw:
                 continue
             samples = []
-            for data, sample in zip(raw, imu_samples(raw), strict=True):
+            for (data, shift_ns), sample in zip(raw, imu_samples([d for d, _ in raw]), strict=True):
                 try:  # a message that is not plain little-endian CDR: deserialised and checked in full
-                    samples.append(sample if sample is not None else msg_to_imu(deserialize_message(data, Imu)))
+                    sample = sample if sample is not None else msg_to_imu(deserialize_message(data, Imu))
                 except (MalformedMessageError, RuntimeError) as exc:
                     self._rejected[str(exc).split(":")[0][:60]] += 1
+                    continue
+                samples.append(replace(sample, stamp_ns=sample.stamp_ns + shift_ns) if shift_ns else sample)
             for reason in self.body.add(segment, samples):
                 if reason is not None:
                     self._rejected[reason] += 1
@@ -312,11 +349,17 @@ class BodyNode(GraphNode):
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
         now = time.monotonic()
-        self._waiting.append((odometry.stamp_ns, odometry.frame_id, T, now, now + self.params["suit_wait_s"]))
+        try:
+            line_ns = self._on_line(self._lidar_clock, "fused odometry", odometry.stamp_ns)
+        except MalformedMessageError as exc:
+            self.count_frame("skipped: far behind the last pose", f"{odometry.stamp_ns}: {exc}")
+            return odometry.stamp_ns
+        self._waiting.append(_FusedPose(odometry.stamp_ns, line_ns, odometry.frame_id, T, now,
+                                        now + self.params["suit_wait_s"]))
         if len(self._waiting) > self.params["max_waiting_poses"]:
             self.take_polled()  # the oldest pose goes now, with every suit sample received (_drain takes them else)
         while len(self._waiting) > self.params["max_waiting_poses"]:
-            self._pose(*self._waiting.popleft()[:4])
+            self._pose(self._waiting.popleft())
         self._drain()
         return odometry.stamp_ns
 
@@ -332,14 +375,15 @@ class BodyNode(GraphNode):
                 self._skip(None, "no map yet" if self._map is None else "no ground under the feet of the first "
                            "window (no sole height)")
         while self._waiting:
-            stamp_ns, _, _, received, deadline = self._waiting[0]
+            fused = self._waiting[0]
             if self._offset_ns is not None:
-                lagging = self._lagging(stamp_ns + self._offset_ns)
-                if lagging and (now < deadline or (now < received + SUIT_QUEUE_S and self._sending(lagging, now))):
+                lagging = self._lagging(fused.line_ns + self._offset_ns)
+                if lagging and (now < fused.deadline or (now < fused.received + SUIT_QUEUE_S
+                                                         and self._sending(lagging, now))):
                     return
-            elif now < deadline:
+            elif now < fused.deadline:
                 return
-            self._pose(*self._waiting.popleft()[:4])
+            self._pose(self._waiting.popleft())
 
     def _lagging(self, suit_ns: int) -> list[str]:
         """The segments that have not sent a sample at or after ``suit_ns`` yet."""
@@ -349,8 +393,9 @@ class BodyNode(GraphNode):
         """Whether each of ``segments`` sent a sample within the last ``suit_wait_s`` (it is behind, not gone)."""
         return all(now - self._arrived.get(s, -np.inf) < self.params["suit_wait_s"] for s in segments)
 
-    def _pose(self, stamp_ns: int, frame_id: str, T_map_P: np.ndarray, received: float) -> None:
+    def _pose(self, fused: _FusedPose) -> None:
         """Pose and publish the body at one fused pelvis pose, or count why not."""
+        stamp_ns, frame_id, T_map_P = fused.stamp_ns, fused.frame_id, fused.T_map_P
         if self._offset_ns is None:
             self.count_frame("skipped: no suit clock offset", f"{stamp_ns}: none received on "
                                                               f"{self.params['offset_topic']}")
@@ -365,7 +410,7 @@ class BodyNode(GraphNode):
                 self.get_logger().info(f"body scaled to the standing pelvis height {T_map_P[2, 3]:.3f} m: "
                                        f"{scale:.3f} x the contract skeleton")
         self._decode()
-        pose, reason = self.body.pose(stamp_ns + self._offset_ns, T_map_P)
+        pose, reason = self.body.pose(fused.line_ns + self._offset_ns, T_map_P)
         if pose is None:
             self.count_frame("skipped: suit data missing", f"{stamp_ns}: {reason}")
             return
@@ -376,10 +421,10 @@ class BodyNode(GraphNode):
                                              pose.local_rot, pose.glob_rot, pose.joints).items():
             self._out[topic].publish(msg)
         self.count_frame("pose")
-        self._latency.add(time.monotonic() - received)
+        self._latency.add(time.monotonic() - fused.received)
         if self._optimiser is not None:
             self._last_pose_at = time.monotonic()
-            self._optimise_frame(stamp_ns, frame_id, T_map_P, pose)
+            self._optimise_frame(fused, pose)
 
     def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
         """Poses published, the body's scale, poses waiting, latencies."""
@@ -387,6 +432,7 @@ class BodyNode(GraphNode):
         return level, "posing" if self.frames["pose"] else "no pose yet", {
             "body scale": f"{self.body.skeleton.scale:.3f}", "poses with held suit data": self._degraded,
             "pending": len(self._waiting), **{f"suit samples rejected: {k}": v for k, v in self._rejected.items()},
+            "clock steps back (LiDAR, suit)": f"{len(self._lidar_clock.steps_ns)}, {len(self._suit_clock.steps_ns)}",
             **self._latency.values("latency_ms"), **self._optimisation_status()}
 
     def _optimisation_status(self) -> dict[str, Any]:

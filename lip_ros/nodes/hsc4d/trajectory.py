@@ -19,16 +19,23 @@ The sweeps held until the jump are registered with each new sweep for at most
 half a LiDAR period (not in one long callback, during which the suit's samples
 would overflow their queues); a sweep waits (at most ``suit_wait_s`` after it arrived) until the
 suit's samples cover it, so that its deskew and initial guess have the suit's
-motion whatever order the transport delivers in. A sweep stamped more than a second
-before the last one (a bag started again, a clock jump) starts the trajectory
-over; a sweep not after the last one otherwise is skipped.
+motion whatever order the transport delivers in (and the pelvis samples within
+it, not only the newest: :meth:`TrajectoryPipeline.suit_covers`).
+
+When the LiDAR's or the suit's clock steps back (a PTP step; stamps more than
+0.5 s behind, confirmed by the next message), the trajectory goes on: each
+clock's stamps are moved on by the step (:class:`lip_ros.core.clock.SteppingClock`;
+the first message behind is refused), the map, the offset and the mounting
+are kept, and the outputs are stamped as the LiDAR's clock now reads. A step
+ahead is a gap in the stamps, which the odometry bridges with the suit's
+motion. A sweep not after the last one otherwise is skipped.
 """
 
 from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -49,6 +56,7 @@ from lip_msgs_py import (
     transform_stamped_to_msg,
     xyz_to_cloud,
 )
+from lip_ros.core.clock import SteppingClock
 from lip_ros.core.rotations import matrix_to_axis_angle, matrix_to_quat
 from lip_ros.hsc4d.lidar_odometry import OdometryConfig
 from lip_ros.hsc4d.mount import HipMountPrior
@@ -75,7 +83,6 @@ __all__ = ["TrajectoryNode", "main"]
 _DROPPED = {"sweeps dropped waiting for the jump": "skipped: held too long (no jump)",
             "sweeps dropped waiting for the map frame": "skipped: held too long (no map frame)",
             "sweeps dropped: registration fell behind": "skipped: registration fell behind"}
-_RESTART_NS = 1_000_000_000  # a sweep this far before the last one starts the trajectory over
 _MAX_TWIST_DT_S = 0.5  # the twist is left zero across a longer gap between outputs
 #: the cloud input keeps this much of clouds (SensorDataQoS otherwise): the longest callback (registering a few
 #: sweeps while the rest of the process also wants the interpreter) measured up to about a second, and while the
@@ -88,6 +95,7 @@ _CLOUD_QUEUE_S = 2.0
 #: period lost clouds in DDS, 33 of 600, while the backlog was worked off; docs/hsc4d/graph.md)
 _CATCH_UP_SHARE = 0.3
 _SUIT_INPUTS = ("suit pelvis imu", "suit odometry")  # the input names of the suit's topics
+_LIDAR = "hip lidar"  # the LiDAR's input name
 _MAX_TRACKED = 1000  # sweeps whose receipt time is kept for the latency
 
 
@@ -147,7 +155,7 @@ class TrajectoryNode(GraphNode):
         self._last_received = 0.0  # monotonic s of the last cloud
         self._last_step: TrajectoryStep | None = None
         self._map_stamp_ns: int | None = None
-        self._restarts = 0
+        self._lidar_clock, self._suit_clock = SteppingClock(), SteppingClock()  # time lines across clock steps
         self._published = 0
         self._latency = LatencyWindow()  # cloud received -> odometry published, sweeps with no backlog before them
         self._catch_up_latency = LatencyWindow()  # ... sweeps after the sync that waited behind the backlog
@@ -159,7 +167,7 @@ class TrajectoryNode(GraphNode):
         self._tf_pub = tf_publisher(self) if p["publish_tf"] else None
         clouds = QoSProfile(depth=int(np.ceil(_CLOUD_QUEUE_S * p["lidar_rate_hz"])), reliability=IMU_INPUT.reliability,
                             durability=IMU_INPUT.durability)
-        self.add_input("hip lidar", p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud, clouds,
+        self.add_input(_LIDAR, p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud, clouds,
                        # the suit's inputs are on its own clock: not checked
                        stamped_at=1.0 / p["lidar_rate_hz"], count_missing=True)
         suit = suit_input(p["suit_rate_hz"])
@@ -181,29 +189,49 @@ class TrajectoryNode(GraphNode):
         if points.shape[0] == 0:
             self.count_frame("skipped: empty cloud", f"{stamp_ns}: no finite point")
             return stamp_ns
-        point_ns = stamp_ns + t.astype(np.int64)
-        self._waiting.append(_Sweep(stamp_ns, points.astype(np.float64), point_ns, received, int(point_ns.max())))
+        line_ns = self._on_line(self._lidar_clock, _LIDAR, stamp_ns)
+        if line_ns is None:
+            self.count_frame("skipped: far behind the last sweep", f"{stamp_ns}: a clock step if the next one is too")
+            return stamp_ns
+        point_ns = line_ns + t.astype(np.int64)
+        self._waiting.append(_Sweep(line_ns, points.astype(np.float64), point_ns, received, int(point_ns.max())))
         self._take_suit()
         while len(self._waiting) > self.params["max_waiting_sweeps"]:
             self._take(self._waiting.popleft())  # goes on with the suit data there is
         self._drain()
         return stamp_ns
 
+    def _on_line(self, clock: SteppingClock, stream: str, stamp_ns: int) -> int | None:
+        """``stream``'s stamp on ``clock``'s time line (None: far behind, not confirmed as a step yet); a step
+        back is logged."""
+        steps = len(clock.steps_ns)
+        line_ns = clock.internal(stream, stamp_ns)
+        if len(clock.steps_ns) > steps:
+            self.get_logger().warning(f"{stream}: its clock stepped back {clock.steps_ns[-1] * 1e-9:.3f} s: the "
+                                      "trajectory goes on, its stamps moved on by the step")
+        return line_ns
+
     def _on_pelvis(self, msg: Imu) -> int:
         sample = msg_to_imu(msg)
-        reason = self.pipeline.add_pelvis_imu(sample)
+        line_ns = self._on_line(self._suit_clock, _SUIT_INPUTS[0], sample.stamp_ns)
+        if line_ns is None:
+            raise MalformedMessageError("far behind the last sample (a clock step if the next one is too)")
+        reason = self.pipeline.add_pelvis_imu(replace(sample, stamp_ns=line_ns))
         if reason is not None:
             raise MalformedMessageError(reason)
-        self._suit_ns["imu"] = sample.stamp_ns
+        self._suit_ns["imu"] = line_ns
         self._take_covered()
         return sample.stamp_ns
 
     def _on_suit_odometry(self, msg: Odometry) -> int:
         odometry = msg_to_odometry(msg)
-        reason = self.pipeline.add_suit_odometry(odometry.stamp_ns, odometry.position, odometry.quat)
+        line_ns = self._on_line(self._suit_clock, _SUIT_INPUTS[1], odometry.stamp_ns)
+        if line_ns is None:
+            raise MalformedMessageError("far behind the last sample (a clock step if the next one is too)")
+        reason = self.pipeline.add_suit_odometry(line_ns, odometry.position, odometry.quat)
         if reason is not None:
             raise MalformedMessageError(reason)
-        self._suit_ns["odometry"] = odometry.stamp_ns
+        self._suit_ns["odometry"] = line_ns
         self._take_covered()
         return odometry.stamp_ns
 
@@ -214,12 +242,14 @@ class TrajectoryNode(GraphNode):
             self.take_waiting(name)
 
     def _suit_covers(self, sweep: _Sweep) -> bool:
-        """Whether both suit streams reached the sweep's last point (always, before the offset is known: held)."""
+        """Whether the suit's samples cover the sweep (:meth:`TrajectoryPipeline.suit_covers`; always, before the
+        offset is known: held). Both suit streams must have reached its last point first (a cheap test)."""
         offset = self.pipeline.offset_ns
         if offset is None:
             return True
         end = sweep.end_ns + offset
-        return all(s is not None and s >= end for s in self._suit_ns.values())
+        return (all(s is not None and s >= end for s in self._suit_ns.values())
+                and self.pipeline.suit_covers(sweep.stamp_ns, sweep.end_ns))
 
     def _take_covered(self) -> None:
         """Once synced, take the waiting sweeps the suit now covers as its samples come in (not at the next
@@ -246,8 +276,6 @@ class TrajectoryNode(GraphNode):
 
     def _take(self, sweep: _Sweep) -> None:
         """Give one sweep to the pipeline and publish what comes out."""
-        if self._last_ns is not None and sweep.stamp_ns < self._last_ns - _RESTART_NS:
-            self._restart(sweep.stamp_ns)
         if self._last_ns is not None and sweep.stamp_ns <= self._last_ns:
             self.count_frame("skipped: not after the last sweep", f"{sweep.stamp_ns} <= {self._last_ns}")
             return
@@ -277,21 +305,11 @@ class TrajectoryNode(GraphNode):
                 self.count_frame(what)
             self._dropped[key] = self.pipeline.counts[key]
 
-    def _restart(self, stamp_ns: int) -> None:
-        """The clock went back: a new trajectory (the sweeps waiting in the old one are counted as skipped)."""
-        for _ in range(self.pipeline.waiting):
-            self.count_frame("skipped: trajectory restarted")
-        self.get_logger().warning(f"sweep at {stamp_ns} ns is over a second before the last ({self._last_ns} ns): "
-                                  "the clock jumped back; starting over, waiting for a jump")
-        self.pipeline = TrajectoryPipeline(self._config)
-        self._suit_ns = {"imu": None, "odometry": None}
-        self._last_ns, self._last_step, self._dropped = None, None, Counter()
-        self._restarts += 1
-
     def _publish(self, step: TrajectoryStep, received: tuple[float, bool] | None) -> None:
         """The fused pose of one sweep: odometry, /tf; its latency from ``received`` (its cloud's receipt and
         whether it waited behind the backlog; None for a sweep held for the jump)."""
         p = self.params
+        stamp_ns = self._lidar_clock.external(step.stamp_ns)  # as the LiDAR's clock read at that moment
         R, position = step.pelvis[:3, :3], step.pelvis[:3, 3]
         quat = matrix_to_quat(R)
         linear = angular = None
@@ -301,11 +319,11 @@ class TrajectoryNode(GraphNode):
             linear = R.T @ (position - last.pelvis[:3, 3]) / dt
             angular = matrix_to_axis_angle(last.pelvis[:3, :3].T @ R) / dt
         self._last_step = step
-        self._odometry_pub.publish(odometry_to_msg(self.backend, step.stamp_ns, p["frame_id"], p["child_frame_id"],
+        self._odometry_pub.publish(odometry_to_msg(self.backend, stamp_ns, p["frame_id"], p["child_frame_id"],
                                                    position, quat, linear, angular))
         if self._tf_pub is not None:
             self._tf_pub.publish(tf_message(self.backend, [transform_stamped_to_msg(
-                self.backend, step.stamp_ns, p["frame_id"], p["child_frame_id"], position, quat)]))
+                self.backend, stamp_ns, p["frame_id"], p["child_frame_id"], position, quat)]))
         self._published += 1
         if received is not None:
             (self._catch_up_latency if received[1] else self._latency).add(time.monotonic() - received[0])
@@ -318,7 +336,7 @@ class TrajectoryNode(GraphNode):
         points = self.pipeline.map_points()
         if points is None:
             return
-        self._map_pub.publish(xyz_to_cloud(self.backend, points, last.stamp_ns,
+        self._map_pub.publish(xyz_to_cloud(self.backend, points, self._lidar_clock.external(last.stamp_ns),
                                            self.params["frame_id"]))
         self._map_stamp_ns = last.stamp_ns
 
@@ -337,7 +355,7 @@ class TrajectoryNode(GraphNode):
             "odometry published": self._published,
             "map points": self.pipeline.site.size,
             "map points not kept (full)": self.pipeline.site.refused,
-            "restarts": self._restarts,
+            "clock steps back (LiDAR, suit)": f"{len(self._lidar_clock.steps_ns)}, {len(self._suit_clock.steps_ns)}",
             "pending": pipe.waiting + len(self._waiting),
             **{k: v for k, v in sorted(pipe.counts.items()) if k not in _DROPPED},
             **self._latency.values("latency_ms"),

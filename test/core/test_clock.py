@@ -1,0 +1,62 @@
+"""Clocks that step back (lip_ros.core.clock): the step test, and the time line that goes on across steps."""
+
+from __future__ import annotations
+
+from lip_ros.core.clock import CLOCK_STEP_NS, SteppingClock, stepped_back
+
+S = 1_000_000_000
+MS = 1_000_000
+
+
+def test_a_stamp_far_behind_is_a_step_and_a_little_behind_is_not():
+    assert stepped_back(10 * S, None) == 0
+    assert stepped_back(10 * S - CLOCK_STEP_NS, 10 * S) == 0  # out of order by the tolerance: not a step
+    assert stepped_back(5 * S, 10 * S) == 5 * S
+
+
+def test_the_time_line_goes_on_across_a_step_back_of_every_stream_of_the_clock():
+    clock = SteppingClock()
+    imu = [clock.internal("imu", t) for t in range(0, 200 * MS, 10 * MS)]  # 100 Hz until 190 ms
+    odometry = [clock.internal("odometry", t) for t in range(5 * MS, 200 * MS, 10 * MS)]
+    assert imu[-1] == 190 * MS and odometry[-1] == 195 * MS  # nothing moved before a step
+    # the clock steps 5 s back at 200 ms: the first stamp behind is refused, the next confirms the step
+    assert clock.internal("imu", 200 * MS - 5 * S) is None
+    assert clock.internal("imu", 210 * MS - 5 * S) == 210 * MS
+    assert clock.steps_ns == [5 * S]
+    # the other stream crosses the same step (refusing its first stamp behind too), by the same size
+    assert clock.internal("odometry", 205 * MS - 5 * S) is None
+    assert clock.internal("odometry", 215 * MS - 5 * S) == 215 * MS
+    assert clock.steps_ns == [5 * S]
+    assert clock.internal("imu", 220 * MS - 5 * S) == 220 * MS
+    # outputs go back to the clock's reading at each moment: before the step as it was, after it as it is now
+    assert clock.external(190 * MS) == 190 * MS
+    assert clock.external(220 * MS) == 220 * MS - 5 * S
+
+
+def test_a_single_stale_message_is_refused_and_is_no_step():
+    clock = SteppingClock()
+    for t in range(0, 100 * MS, 10 * MS):
+        clock.internal("imu", t)
+    assert clock.internal("imu", 90 * MS - 2 * S) is None  # a stale message
+    assert clock.internal("imu", 100 * MS) == 100 * MS  # the stream goes on: no step
+    assert clock.internal("imu", 110 * MS) == 110 * MS and clock.steps_ns == []
+    assert clock.internal("imu", 105 * MS) == 105 * MS  # a little out of order: passed on as it is
+
+
+def test_a_step_ahead_is_left_as_a_gap():
+    clock = SteppingClock()
+    clock.internal("lidar", 0)
+    assert clock.internal("lidar", 5 * S) == 5 * S and clock.steps_ns == []
+    assert clock.external(5 * S) == 5 * S
+
+
+def test_two_steps_add_up():
+    clock = SteppingClock()
+    for t in (0, 100 * MS, 200 * MS):
+        clock.internal("lidar", t)
+    clock.internal("lidar", 300 * MS - 3 * S)
+    assert clock.internal("lidar", 400 * MS - 3 * S) == 400 * MS
+    clock.internal("lidar", 500 * MS - 10 * S)
+    assert clock.internal("lidar", 600 * MS - 10 * S) == 600 * MS
+    assert clock.steps_ns == [3 * S, 7 * S]
+    assert clock.external(350 * MS) == 350 * MS - 3 * S and clock.external(600 * MS) == 600 * MS - 10 * S
