@@ -48,9 +48,12 @@ class SteppingClock:
         # stream -> newest stamp, spacing, steps crossed, the stamp far behind it not confirmed yet (or None)
         self._streams: dict[str, tuple[int, int, int, int | None]] = {}
 
-    def internal(self, stream: str, stamp_ns: int) -> int | None:
+    def internal(self, stream: str, stamp_ns: int, confirm: bool = True) -> int | None:
         """The time of ``stream``'s stamp on the time line; None for a stamp far behind the stream's newest that
-        the stream has not confirmed as a step yet (refuse that message)."""
+        the stream has not confirmed as a step yet (refuse that message). Without ``confirm`` the first stamp far
+        behind is the step (a stream that never sends a stale message: a LiDAR's sweeps, another node's output);
+        no message is refused then, which keeps the spacing of what the stream sends after the step right for
+        those downstream that measure the step again."""
         newest, spacing, crossed, stale = self._streams.get(stream, (None, 0, 0, None))
         if newest is None:
             self._streams[stream] = (stamp_ns, 0, 0, None)
@@ -60,14 +63,15 @@ class SteppingClock:
                 spacing, newest = stamp_ns - newest, stamp_ns
             self._streams[stream] = (newest, spacing, crossed, None)
             return stamp_ns + self._shifts[crossed]
-        if stale is None:  # the first stamp that far back: a stale message, or a step the next one confirms
+        if stale is None and confirm:  # the first stamp that far back: a stale message, or a step the next one confirms
             self._streams[stream] = (newest, spacing, crossed, stamp_ns)
             return None
         if crossed == len(self.steps_ns):  # the first of the clock's streams past this step
-            size = newest + spacing - min(stale, stamp_ns)
+            first = stamp_ns if stale is None else min(stale, stamp_ns)  # the first stamp after the step
+            size = newest + spacing - first
             self.steps_ns.append(size)
             self._shifts.append(self._shifts[-1] + size)
-            self._starts.append(min(stale, stamp_ns) + self._shifts[-1])
+            self._starts.append(first + self._shifts[-1])
         crossed += 1
         self._streams[stream] = (stamp_ns, spacing, crossed, None)
         return stamp_ns + self._shifts[crossed]

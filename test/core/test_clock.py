@@ -60,3 +60,12 @@ def test_two_steps_add_up():
     assert clock.internal("lidar", 600 * MS - 10 * S) == 600 * MS
     assert clock.steps_ns == [3 * S, 7 * S]
     assert clock.external(350 * MS) == 350 * MS - 3 * S and clock.external(600 * MS) == 600 * MS - 10 * S
+
+
+def test_without_confirmation_the_first_stamp_behind_is_the_step():
+    """A LiDAR's sweeps or another node's output: nothing refused, and the step's size from the stream's spacing."""
+    clock = SteppingClock()
+    for t in (0, 100 * MS, 200 * MS):
+        clock.internal("lidar", t, confirm=False)
+    assert clock.internal("lidar", 300 * MS - 5 * S, confirm=False) == 300 * MS
+    assert clock.steps_ns == [5 * S] and clock.external(300 * MS) == 300 * MS - 5 * S

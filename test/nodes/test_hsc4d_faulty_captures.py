@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from helpers import console_script
 
-from lip_msgs_py import msg_to_diagnostics, msg_to_odometry, msg_to_pose_stamped
+from lip_msgs_py import msg_to_diagnostics, msg_to_odometry, msg_to_pose_array, msg_to_pose_stamped
 from lip_ros.bagio import read_messages
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, ODOMETRY_TOPIC
 from lip_ros.rig.faults import FaultSpec, write_faulty_bag
@@ -63,6 +63,15 @@ def _poses(outputs: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array([o.stamp_ns for o in odometry]), np.array([o.position for o in odometry])
 
 
+def _joints(outputs: Path, moment_of: dict[int, int] | None = None) -> dict[int, np.ndarray]:
+    """/hsc4d/joint_poses: (24, 3) joint positions by the moment they hold (their stamp, or ``moment_of`` it)."""
+    out = {}
+    for m in read_messages(outputs, [HSC4D_TOPICS.joint_poses]):
+        poses = msg_to_pose_array(m.msg)
+        out[(moment_of or {}).get(poses.stamp_ns, poses.stamp_ns)] = poses.positions
+    return out
+
+
 @pytest.mark.parametrize("name", list(FAULTS))
 def test_no_process_fails_and_every_sweep_is_accounted_for(runs, name: str) -> None:
     bag, outputs, proc = runs[name]
@@ -99,6 +108,15 @@ def test_after_the_clocks_step_the_trajectory_goes_on_as_on_the_clean_capture(ru
     assert len(common) >= len(clean) - 6, (len(common), len(clean))
     apart = np.linalg.norm(positions[common] - np.array([clean[int(moment[k])] for k in common]), axis=1)
     assert np.median(apart) < 0.02 and apart.max() < 0.10, (np.median(apart), apart.max())
+    # the body on it: the suit's samples matched at the same moments as in the clean run (100 ms off would move a
+    # walker's hands and feet by several cm)
+    clean_joints = _joints(runs["clean"][1])
+    joints = _joints(runs["clock"][1], moment_of=dict(zip(stamps.tolist(), moment.tolist())))
+    common = sorted(set(joints) & set(clean_joints))
+    assert len(common) >= len(clean_joints) - 6, (len(common), len(clean_joints))
+    relative = [np.linalg.norm((joints[t] - joints[t][0]) - (clean_joints[t] - clean_joints[t][0]), axis=1).mean()
+                for t in common]
+    assert np.median(relative) < 0.005 and max(relative) < 0.03, (np.median(relative), max(relative))
     last = {}
     for m in read_messages(runs["clock"][1], ["/diagnostics"]):
         last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)

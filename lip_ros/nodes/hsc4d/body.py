@@ -230,11 +230,11 @@ class BodyNode(GraphNode):
         k = k - 1 if k > 0 and abs(stamps[k - 1] - suit_ns) < abs(stamps[k] - suit_ns) else k
         return self._suit_poses[k] if abs(stamps[k] - suit_ns) <= self.params["max_imu_gap_s"] * 1e9 else None
 
-    def _on_line(self, clock: SteppingClock, stream: str, stamp_ns: int) -> int:
-        """``stream``'s stamp on ``clock``'s time line; a step back is logged; MalformedMessageError for a stamp
-        far behind, not confirmed as a step yet."""
+    def _on_line(self, clock: SteppingClock, stream: str, stamp_ns: int, confirm: bool = True) -> int:
+        """``stream``'s stamp on ``clock``'s time line (:meth:`SteppingClock.internal`); a step back is logged;
+        MalformedMessageError for a stamp far behind, not confirmed as a step yet."""
         steps = len(clock.steps_ns)
-        line_ns = clock.internal(stream, stamp_ns)
+        line_ns = clock.internal(stream, stamp_ns, confirm)
         if line_ns is None:
             raise MalformedMessageError("far behind the last message (a clock step if the next one is too)")
         if len(clock.steps_ns) > steps:
@@ -349,11 +349,8 @@ class BodyNode(GraphNode):
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
         now = time.monotonic()
-        try:
-            line_ns = self._on_line(self._lidar_clock, "fused odometry", odometry.stamp_ns)
-        except MalformedMessageError as exc:
-            self.count_frame("skipped: far behind the last pose", f"{odometry.stamp_ns}: {exc}")
-            return odometry.stamp_ns
+        # the trajectory node's output, in order: a step back in it is the LiDAR's clock stepping
+        line_ns = self._on_line(self._lidar_clock, "fused odometry", odometry.stamp_ns, confirm=False)
         self._waiting.append(_FusedPose(odometry.stamp_ns, line_ns, odometry.frame_id, T, now,
                                         now + self.params["suit_wait_s"]))
         if len(self._waiting) > self.params["max_waiting_poses"]:

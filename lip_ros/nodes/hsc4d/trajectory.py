@@ -23,9 +23,10 @@ motion whatever order the transport delivers in (and the pelvis samples within
 it, not only the newest: :meth:`TrajectoryPipeline.suit_covers`).
 
 When the LiDAR's or the suit's clock steps back (a PTP step; stamps more than
-0.5 s behind, confirmed by the next message), the trajectory goes on: each
-clock's stamps are moved on by the step (:class:`lip_ros.core.clock.SteppingClock`;
-the first message behind is refused), the map, the offset and the mounting
+0.5 s behind; for the suit, confirmed by its next message), the trajectory
+goes on: each clock's stamps are moved on by the step
+(:class:`lip_ros.core.clock.SteppingClock`; the suit's first message behind is
+refused), the map, the offset and the mounting
 are kept, and the outputs are stamped as the LiDAR's clock now reads. A step
 ahead is a gap in the stamps, which the odometry bridges with the suit's
 motion. A sweep not after the last one otherwise is skipped.
@@ -189,10 +190,9 @@ class TrajectoryNode(GraphNode):
         if points.shape[0] == 0:
             self.count_frame("skipped: empty cloud", f"{stamp_ns}: no finite point")
             return stamp_ns
-        line_ns = self._on_line(self._lidar_clock, _LIDAR, stamp_ns)
-        if line_ns is None:
-            self.count_frame("skipped: far behind the last sweep", f"{stamp_ns}: a clock step if the next one is too")
-            return stamp_ns
+        # a LiDAR sends no stale sweep: the first one behind is the step (and the outputs' spacing stays whole for
+        # the body node, which finds the step again from their stamps)
+        line_ns = self._on_line(self._lidar_clock, _LIDAR, stamp_ns, confirm=False)
         point_ns = line_ns + t.astype(np.int64)
         self._waiting.append(_Sweep(line_ns, points.astype(np.float64), point_ns, received, int(point_ns.max())))
         self._take_suit()
@@ -201,11 +201,11 @@ class TrajectoryNode(GraphNode):
         self._drain()
         return stamp_ns
 
-    def _on_line(self, clock: SteppingClock, stream: str, stamp_ns: int) -> int | None:
-        """``stream``'s stamp on ``clock``'s time line (None: far behind, not confirmed as a step yet); a step
-        back is logged."""
+    def _on_line(self, clock: SteppingClock, stream: str, stamp_ns: int, confirm: bool = True) -> int | None:
+        """``stream``'s stamp on ``clock``'s time line (None: far behind, not confirmed as a step yet; see
+        :meth:`SteppingClock.internal`); a step back is logged."""
         steps = len(clock.steps_ns)
-        line_ns = clock.internal(stream, stamp_ns)
+        line_ns = clock.internal(stream, stamp_ns, confirm)
         if len(clock.steps_ns) > steps:
             self.get_logger().warning(f"{stream}: its clock stepped back {clock.steps_ns[-1] * 1e-9:.3f} s: the "
                                       "trajectory goes on, its stamps moved on by the step")
