@@ -219,7 +219,7 @@ class TrajectoryNode(GraphNode):
         reason = self.pipeline.add_pelvis_imu(replace(sample, stamp_ns=line_ns))
         if reason is not None:
             raise MalformedMessageError(reason)
-        self._suit_ns["imu"] = line_ns
+        self._suit_ns["imu"] = max(line_ns, self._suit_ns["imu"] or line_ns)  # samples may come out of order
         self._take_covered()
         return sample.stamp_ns
 
@@ -231,7 +231,7 @@ class TrajectoryNode(GraphNode):
         reason = self.pipeline.add_suit_odometry(line_ns, odometry.position, odometry.quat)
         if reason is not None:
             raise MalformedMessageError(reason)
-        self._suit_ns["odometry"] = line_ns
+        self._suit_ns["odometry"] = max(line_ns, self._suit_ns["odometry"] or line_ns)
         self._take_covered()
         return odometry.stamp_ns
 
