@@ -32,6 +32,7 @@ class PelvisRotation:
         self.R_M_L = np.asarray(R_M_L, dtype=np.float64)
         self._sync = ImuSynchronizer([_PELVIS], SyncConfig(capacity=capacity, max_gap_ns=max_gap_ns))
         self.offset_ns: int | None = None
+        self.max_gap_ns = int(max_gap_ns)  #: samples further apart than this are not interpolated between
 
     def set_offset(self, offset_ns: int) -> None:
         """The suit's clock is ``offset_ns`` ahead of the LiDAR's (suit stamp = LiDAR stamp + offset)."""

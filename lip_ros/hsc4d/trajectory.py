@@ -60,9 +60,6 @@ from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
 
 __all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline", "RATE_CAPPED"]
 
-#: :meth:`TrajectoryPipeline.suit_covers` looks for gaps in the pelvis samples this finely (below their largest
-#: bridged gap, 50 ms)
-_COVER_STEP_NS = 20_000_000
 #: :attr:`TrajectoryPipeline.counts` key of the sweeps the odometry posed by the suit's motion under its rate cap
 RATE_CAPPED = "sweeps posed by the suit's motion (registration rate cap)"
 
@@ -232,7 +229,8 @@ class TrajectoryPipeline:
         (the sweeps are held until then)."""
         if self.offset_ns is None:
             return True
-        t = np.linspace(t0_ns, t1_ns, max(2, int(np.ceil((t1_ns - t0_ns) / _COVER_STEP_NS)) + 1)).astype(np.int64)
+        step_ns = self.rotation.max_gap_ns // 2  # any gap the buffer does not bridge holds one of these times
+        t = np.linspace(t0_ns, t1_ns, max(2, int(np.ceil((t1_ns - t0_ns) / step_ns)) + 1)).astype(np.int64)
         return bool(np.isfinite(self.rotation.rotation_of_lidar(t)).all()) and self.suit.pelvis(int(t1_ns)) is not None
 
     def add_to_map(self, step: TrajectoryStep) -> int:

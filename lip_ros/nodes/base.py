@@ -51,6 +51,7 @@ from lip_msgs_py import (
     diagnostic_status_to_msg,
     rclpy_message_class,
 )
+from lip_ros.core.clock import SteppingClock
 from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import use_lip_dds_profile
 from lip_ros.resources import params_path
@@ -344,6 +345,18 @@ class GraphNode(Node):
                                                        raw=raw), callback)
         if polled:
             self._polled.append(name)
+
+    def on_time_line(self, clock: SteppingClock, stream: str, stamp_ns: int, confirm: bool = True) -> int:
+        """``stream``'s stamp on ``clock``'s time line across its steps back (:meth:`SteppingClock.internal`); a
+        step is logged; MalformedMessageError for a stamp far behind that is not confirmed as a step yet."""
+        steps = len(clock.steps_ns)
+        line_ns = clock.internal(stream, stamp_ns, confirm)
+        if line_ns is None:
+            raise MalformedMessageError("far behind the last message (a clock step if the next one is too)")
+        if len(clock.steps_ns) > steps:
+            self.get_logger().warning(f"{stream}: its clock stepped back {clock.steps_ns[-1] * 1e-9:.3f} s: going "
+                                      "on, its stamps moved on by the step")
+        return line_ns
 
     def input_delay_s(self, name: str) -> float | None:
         """Input ``name``'s recent median of receive time less stamp (:meth:`SensorMonitor.delay_s`)."""

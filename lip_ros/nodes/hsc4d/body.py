@@ -212,7 +212,7 @@ class BodyNode(GraphNode):
         norm = float(np.linalg.norm(odometry.quat))
         if not (np.isfinite(odometry.position).all() and np.isfinite(norm) and norm > 0.5):
             raise MalformedMessageError("non-finite position or degenerate quaternion")
-        line_ns = self._on_line(self._suit_clock, "suit odometry", odometry.stamp_ns)
+        line_ns = self.on_time_line(self._suit_clock, "suit odometry", odometry.stamp_ns)
         if self._suit_stamps and line_ns <= self._suit_stamps[-1]:
             raise MalformedMessageError("not after the last sample")
         T = np.eye(4)
@@ -229,18 +229,6 @@ class BodyNode(GraphNode):
         k = int(np.clip(np.searchsorted(stamps, suit_ns), 1, len(stamps) - 1)) if len(stamps) > 1 else 0
         k = k - 1 if k > 0 and abs(stamps[k - 1] - suit_ns) < abs(stamps[k] - suit_ns) else k
         return self._suit_poses[k] if abs(stamps[k] - suit_ns) <= self.params["max_imu_gap_s"] * 1e9 else None
-
-    def _on_line(self, clock: SteppingClock, stream: str, stamp_ns: int, confirm: bool = True) -> int:
-        """``stream``'s stamp on ``clock``'s time line (:meth:`SteppingClock.internal`); a step back is logged;
-        MalformedMessageError for a stamp far behind, not confirmed as a step yet."""
-        steps = len(clock.steps_ns)
-        line_ns = clock.internal(stream, stamp_ns, confirm)
-        if line_ns is None:
-            raise MalformedMessageError("far behind the last message (a clock step if the next one is too)")
-        if len(clock.steps_ns) > steps:
-            self.get_logger().warning(f"{stream}: its clock stepped back {clock.steps_ns[-1] * 1e-9:.3f} s: the "
-                                      "poses go on, its stamps moved on by the step")
-        return line_ns
 
     def _optimise_frame(self, fused: _FusedPose, pose: BodyPose) -> None:
         """Give one posed frame to the optimiser (with the suit's own feet); optimise a full window."""
@@ -317,7 +305,7 @@ class BodyNode(GraphNode):
     def _on_imu(self, segment: str, data: bytes) -> int:
         """Keep a suit sample's bytes (decoded in a batch when a pose needs them) and its stamp."""
         stamp_ns = cdr_stamp(data)
-        line_ns = self._on_line(self._suit_clock, segment, stamp_ns)
+        line_ns = self.on_time_line(self._suit_clock, segment, stamp_ns)
         raw = self._raw[segment]
         raw.append((data, line_ns - stamp_ns))
         if len(raw) > self.body.config.capacity:  # no pose asked for a while: keep the newest
@@ -350,7 +338,7 @@ class BodyNode(GraphNode):
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
         now = time.monotonic()
         # the trajectory node's output, in order: a step back in it is the LiDAR's clock stepping
-        line_ns = self._on_line(self._lidar_clock, "fused odometry", odometry.stamp_ns, confirm=False)
+        line_ns = self.on_time_line(self._lidar_clock, "fused odometry", odometry.stamp_ns, confirm=False)
         self._waiting.append(_FusedPose(odometry.stamp_ns, line_ns, odometry.frame_id, T, now,
                                         now + self.params["suit_wait_s"]))
         if len(self._waiting) > self.params["max_waiting_poses"]:

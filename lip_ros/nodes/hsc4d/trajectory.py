@@ -192,7 +192,7 @@ class TrajectoryNode(GraphNode):
             return stamp_ns
         # a LiDAR sends no stale sweep: the first one behind is the step (and the outputs' spacing stays whole for
         # the body node, which finds the step again from their stamps)
-        line_ns = self._on_line(self._lidar_clock, _LIDAR, stamp_ns, confirm=False)
+        line_ns = self.on_time_line(self._lidar_clock, _LIDAR, stamp_ns, confirm=False)
         point_ns = line_ns + t.astype(np.int64)
         self._waiting.append(_Sweep(line_ns, points.astype(np.float64), point_ns, received, int(point_ns.max())))
         self._take_suit()
@@ -201,21 +201,9 @@ class TrajectoryNode(GraphNode):
         self._drain()
         return stamp_ns
 
-    def _on_line(self, clock: SteppingClock, stream: str, stamp_ns: int, confirm: bool = True) -> int | None:
-        """``stream``'s stamp on ``clock``'s time line (None: far behind, not confirmed as a step yet; see
-        :meth:`SteppingClock.internal`); a step back is logged."""
-        steps = len(clock.steps_ns)
-        line_ns = clock.internal(stream, stamp_ns, confirm)
-        if len(clock.steps_ns) > steps:
-            self.get_logger().warning(f"{stream}: its clock stepped back {clock.steps_ns[-1] * 1e-9:.3f} s: the "
-                                      "trajectory goes on, its stamps moved on by the step")
-        return line_ns
-
     def _on_pelvis(self, msg: Imu) -> int:
         sample = msg_to_imu(msg)
-        line_ns = self._on_line(self._suit_clock, _SUIT_INPUTS[0], sample.stamp_ns)
-        if line_ns is None:
-            raise MalformedMessageError("far behind the last sample (a clock step if the next one is too)")
+        line_ns = self.on_time_line(self._suit_clock, _SUIT_INPUTS[0], sample.stamp_ns)
         reason = self.pipeline.add_pelvis_imu(replace(sample, stamp_ns=line_ns))
         if reason is not None:
             raise MalformedMessageError(reason)
@@ -225,9 +213,7 @@ class TrajectoryNode(GraphNode):
 
     def _on_suit_odometry(self, msg: Odometry) -> int:
         odometry = msg_to_odometry(msg)
-        line_ns = self._on_line(self._suit_clock, _SUIT_INPUTS[1], odometry.stamp_ns)
-        if line_ns is None:
-            raise MalformedMessageError("far behind the last sample (a clock step if the next one is too)")
+        line_ns = self.on_time_line(self._suit_clock, _SUIT_INPUTS[1], odometry.stamp_ns)
         reason = self.pipeline.add_suit_odometry(line_ns, odometry.position, odometry.quat)
         if reason is not None:
             raise MalformedMessageError(reason)
