@@ -86,8 +86,8 @@ class TrajectoryRun:
     each sweep took in ``add_sweep`` (ms; the sweeps held until the jump are registered together in the call that
     finds it, each counted at that call's time over their number), the refinement's optimisation time per window
     (s) and the sole height it measured (m), the pipeline's counters, the maps (M, 3) in ``map`` (:data:`MAPS`), the
-    wall time of the whole offline refinement (s), and the lever arm (3,) (m, in the pelvis frame) the pipeline
-    ended with, its nominal value and the truth."""
+    wall time of the whole offline refinement (s), and the mounting T_M_L (4, 4: the sensor in the pelvis frame)
+    the pipeline ended with, its nominal value and the truth."""
 
     seed: int
     t_s: np.ndarray
@@ -107,9 +107,9 @@ class TrajectoryRun:
     counts: dict[str, int]
     maps: dict[str, np.ndarray]
     refine_s: float
-    lever_m: np.ndarray
-    nominal_lever_m: np.ndarray
-    true_lever_m: np.ndarray
+    mount: np.ndarray
+    nominal_mount: np.ndarray
+    true_mount: np.ndarray
 
 
 def capture_sweeps(capture: SiteCapture, refiner: CaptureRefiner) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
@@ -202,8 +202,8 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                          np.array(sweep_ms),
                          refined.window_s, refined.sole_m, dict(pipeline.counts),
                          {"live": maps[-1][1], "refined": refined.map},
-                         refined.seconds, pipeline.lever_m, np.asarray(pipeline.config.mount.lever_m),
-                         np.asarray(capture.mount.lever_m))
+                         refined.seconds, np.linalg.inv(pipeline.T_L_M), pipeline.config.mount.T_M_L,
+                         capture.mount.T_M_L)
 
 
 def _fit_window(run: TrajectoryRun, fit_s: float) -> np.ndarray:

@@ -38,6 +38,13 @@ class HipMount:
         by the misalignment)."""
         return hip_lidar_rotation(self.tilt_up_deg) @ axis_angle_to_matrix(self.misalignment)
 
+    @property
+    def T_M_L(self) -> np.ndarray:
+        """(4, 4) the sensor pose in the pelvis frame."""
+        out = np.eye(4)
+        out[:3, :3], out[:3, 3] = self.R_M_L, self.lever_m
+        return out
+
     def perturbed(self, rng: np.random.Generator, lever_m: float = 0.03, tilt_deg: float = 5.0,
                   turn_deg: float = 3.0) -> HipMount:
         """This mounting as a real one differs from its nominal values: the lever arm off by up to ``lever_m``
