@@ -4,7 +4,7 @@
 Per sweep (:meth:`LidarOdometry.register`):
 
 1. the wearer's own returns are removed (:class:`WearerFilter`: a cylinder
-   round the body's axis, placed with the nominal hip mounting), and points
+   round the body's axis, placed with the hip mounting as it now stands), and points
    outside [``min_range_m``, ``max_range_m``];
 2. deskewing: each point is moved to where it would be seen from the sensor at
    the sweep's reference time (its middle) using its own time (the cloud's
@@ -41,7 +41,7 @@ Baseline2 (LiDAR-only odometry): no IMU, no suit.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from kiss_icp.config import KISSConfig
@@ -128,14 +128,15 @@ class OdometryConfig:
         )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class WearerFilter:
     """The wearer's own returns: points nearer the sensor than ``near_m`` (an arm swung out: the rig's wearer
     returns up to 0.7 m away, nothing else comes that close), and points within ``radius_m`` of the body's axis,
     from ``below_m`` under the pelvis (the feet and the ground they stand on) to ``above_m`` over it, the body
-    placed with the nominal mounting."""
+    placed with the mounting T_M_L (4, 4; the nominal one unless given: the trajectory gives it the mounting as
+    levelled and turned)."""
 
-    mount: HipMountPrior = HipMountPrior()
+    T_M_L: np.ndarray = field(default_factory=lambda: HipMountPrior().T_M_L)
     near_m: float = 0.9
     radius_m: float = 0.55
     below_m: float = 1.2
@@ -143,8 +144,9 @@ class WearerFilter:
 
     def keep(self, points: np.ndarray) -> np.ndarray:
         """(N,) bool: the points (N, 3) in L that are not the wearer."""
-        up = self.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])  # the body's axis (M's y) in L
-        d = points - self.mount.pelvis_in_lidar
+        R_M_L = self.T_M_L[:3, :3]
+        up = R_M_L.T @ np.array([0.0, 1.0, 0.0])  # the body's axis (M's y) in L
+        d = points + R_M_L.T @ self.T_M_L[:3, 3]  # from the pelvis origin, at -R_M_L^T lever in L
         along = d @ up
         radial_sq = np.einsum("na,na->n", d, d) - along**2
         body = (radial_sq < self.radius_m**2) & (along > -self.below_m) & (along < self.above_m)

@@ -60,6 +60,13 @@ class MapFrame:
     ground_vs_suit_deg: float
     pelvis_height_m: float
 
+    def under(self, T_O_P0: np.ndarray) -> MapFrame:
+        """The same ground and up with the origin under, and x along the heading of, another first pelvis pose
+        T_O_P0 (4, 4): the same sensor pose seen through a mounting levelled since."""
+        up = np.linalg.inv(self.T_map_O)[:3, 2]
+        height = float(self.T_map_O[2, :3] @ T_O_P0[:3, 3] + self.T_map_O[2, 3])
+        return _frame(T_O_P0, up, height, self.up_source, self.ground_vs_suit_deg)
+
 
 def estimate_map_frame(points: np.ndarray, T_O_P0: np.ndarray, suit_up: np.ndarray, rng: np.random.Generator,
                        config: MapFrameConfig | None = None) -> MapFrame:
@@ -79,11 +86,17 @@ def estimate_map_frame(points: np.ndarray, T_O_P0: np.ndarray, suit_up: np.ndarr
         if not len(below):
             raise ValueError("no map point below the first pelvis position: no ground to put the origin on")
         up, height, source = R_O_V[:, 2], float(-np.percentile(below[:, 2], 1.0)), "suit"
+    return _frame(T_O_P0, up, height, source, angle)
+
+
+def _frame(T_O_P0: np.ndarray, up: np.ndarray, height: float, source: str, angle: float) -> MapFrame:
+    """``map`` with z ``up`` (3,) in O, its origin ``height`` below the first pelvis position and x along the
+    first pelvis's heading."""
     forward = T_O_P0[:3, 2] - (T_O_P0[:3, 2] @ up) * up
     if np.linalg.norm(forward) < 1e-3:
         raise ValueError("the first pelvis pose faces straight up or down: no heading for map")
     x = forward / np.linalg.norm(forward)
     R_O_map = np.column_stack([x, np.cross(up, x), up])
     T_O_map = np.eye(4)
-    T_O_map[:3, :3], T_O_map[:3, 3] = R_O_map, pelvis - height * up
+    T_O_map[:3, :3], T_O_map[:3, 3] = R_O_map, T_O_P0[:3, 3] - height * up
     return MapFrame(np.linalg.inv(T_O_map), source, angle, height)

@@ -11,7 +11,9 @@ the body's axis, shows in walking: the LiDAR's registered steps point a little
 aside from the suit's prediction of them through the mounting
 (:class:`MountYawEstimator`). The lever arm shows when the body turns: the
 sensor then moves by more or less than the pelvis, by the turn applied to the
-lever (hand-eye calibration's translation, :class:`LeverArmEstimator`).
+lever (hand-eye calibration's translation, :class:`LeverArmEstimator`). Hand-eye
+calibration's rotation (:class:`MountRotationEstimator`) checks the levelled
+mounting from the turns of the walk, which do not need the ground to be level.
 """
 
 from __future__ import annotations
@@ -22,12 +24,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from lip_ros.core.frames import hip_lidar_rotation
-from lip_ros.core.rotations import axis_angle_to_matrix
+from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 #: the prior of the suit's stride scale in :class:`LeverArmEstimator` (about 1; loose, it is solved for)
 _SCALE_PRIOR = 0.2
 
-__all__ = ["HipMountPrior", "rotation_between", "levelled_mount_rotation", "MountYawEstimator", "LeverArmEstimator"]
+__all__ = ["HipMountPrior", "rotation_between", "levelled_mount_rotation", "MountYawEstimator", "LeverArmEstimator",
+           "MountRotationEstimator"]
 
 
 @dataclass(frozen=True)
@@ -207,3 +210,55 @@ class LeverArmEstimator:
             return None
         self.lever_m = lever
         return lever
+
+
+class MountRotationEstimator:
+    """The mounting's rotation R_M_L by hand-eye calibration of rotations: over an interval of about ``span_s``
+    between two believed sweeps the LiDAR turns by R_L (in its own frame at the start, from the odometry) and the
+    pelvis by R_P (in its own frame, from the suit); rigid to each other, R_P = R_M_L R_L R_M_L^T, so their
+    rotation vectors satisfy r_P = R_M_L r_L. The estimate is the rotation that best takes the r_L onto the r_P
+    over every interval so far (Kabsch; each interval weighs as the square of its angle), given once the
+    intervals have turned the sensor by ``min_excitation_deg`` about two directions (:attr:`excitation_deg`: the
+    walk's turns about the vertical show the body's axis in L, the hips' sway the turn about it). It needs the
+    odometry's rotations deskewed through a mounting near the truth (1.6 deg off in the turns through one 11 deg
+    off): the trajectory feeds it once the mounting is levelled. Memory: the sweeps of the last ``2 span_s`` and
+    two 3 x 3 sums."""
+
+    def __init__(self, span_s: float = 0.5, min_excitation_deg: float = 30.0) -> None:
+        if not (span_s > 0.0 and min_excitation_deg > 0.0):
+            raise ValueError(f"invalid span {span_s} or excitation {min_excitation_deg}")
+        self.span_ns, self.min_excitation_deg = int(span_s * 1e9), min_excitation_deg
+        self._recent: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        self._cross = np.zeros((3, 3))  # sum of r_P r_L^T
+        self._scatter = np.zeros((3, 3))  # sum of r_L r_L^T
+        self.intervals = 0  #: intervals used
+
+    def add(self, stamp_ns: int, R_O_L: np.ndarray, R_I_P: np.ndarray) -> None:
+        """One believed sweep: the LiDAR's registered rotation (3, 3) in its odometry frame and the suit's pelvis
+        rotation (3, 3) in the suit's world."""
+        recent = self._recent
+        recent.append((int(stamp_ns), np.asarray(R_O_L, dtype=np.float64), np.asarray(R_I_P, dtype=np.float64)))
+        while len(recent) > 1 and recent[1][0] <= stamp_ns - self.span_ns:
+            recent.popleft()
+        start_ns, L0, P0 = recent[0]
+        if not self.span_ns <= stamp_ns - start_ns <= 2 * self.span_ns:
+            return
+        r_L = matrix_to_axis_angle(L0.T @ recent[-1][1])
+        r_P = matrix_to_axis_angle(P0.T @ recent[-1][2])
+        self._cross += np.outer(r_P, r_L)
+        self._scatter += np.outer(r_L, r_L)
+        self.intervals += 1
+
+    @property
+    def excitation_deg(self) -> np.ndarray:
+        """(3,) how far the intervals turned the sensor about each principal direction (the root of the sum of
+        squared angles, deg), largest first."""
+        return np.degrees(np.sqrt(np.clip(np.linalg.eigvalsh(self._scatter), 0.0, None)))[::-1]
+
+    @property
+    def R_M_L(self) -> np.ndarray | None:
+        """(3, 3) the estimate; None until the turns excite two directions by ``min_excitation_deg``."""
+        if self.excitation_deg[1] < self.min_excitation_deg:
+            return None
+        U, _, Vt = np.linalg.svd(self._cross)
+        return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt

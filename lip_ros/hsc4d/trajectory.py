@@ -22,7 +22,10 @@ pose graph, in one object the nodes and the batch tools share (ROS-free).
    mounting about the body's axis as the LiDAR's steps show
    (:class:`~lip_ros.hsc4d.mount.MountYawEstimator`) and moves its lever arm
    as the LiDAR's motion over the body's turns shows
-   (:class:`~lip_ros.hsc4d.mount.LeverArmEstimator`);
+   (:class:`~lip_ros.hsc4d.mount.LeverArmEstimator`), and checks the
+   levelled mounting against the walk's turns
+   (:class:`~lip_ros.hsc4d.mount.MountRotationEstimator`; :attr:`~TrajectoryPipeline.status`
+   says when they disagree);
 4. fuses each sweep in the live pose graph (:mod:`~lip_ros.hsc4d.pose_graph`):
    the believed registrations as landmarks, the suit's motion between sweeps
    as between factors, with the odometry's vertical (the suit knows no
@@ -41,7 +44,7 @@ solves the whole capture's graph at once (the offline refinement's trajectory).
 from __future__ import annotations
 
 from collections import Counter, deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -50,7 +53,13 @@ from lip_ros.core.rotations import axis_angle_to_matrix
 from lip_ros.hsc4d.jump_sync import JumpSync, JumpSyncConfig
 from lip_ros.hsc4d.lidar_odometry import LidarOdometry, OdometryConfig, WearerFilter
 from lip_ros.hsc4d.map_frame import MapFrame, MapFrameConfig, estimate_map_frame
-from lip_ros.hsc4d.mount import HipMountPrior, LeverArmEstimator, MountYawEstimator, levelled_mount_rotation
+from lip_ros.hsc4d.mount import (
+    HipMountPrior,
+    LeverArmEstimator,
+    MountRotationEstimator,
+    MountYawEstimator,
+    levelled_mount_rotation,
+)
 from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
 from lip_ros.hsc4d.pose_graph import LiveTrajectoryGraph, PoseGraphConfig, fuse_batch
 from lip_ros.hsc4d.sensors import SUIT_RATE_HZ
@@ -83,6 +92,10 @@ class TrajectoryConfig:
     record_s: float = 3600.0  # each sweep's factors kept this long for the offline refinement (256 B a sweep)
     seed: int = 0  # of the RANSAC fits
     suit_rate_hz: float = SUIT_RATE_HZ  # samples per second of each suit stream, to size its buffers
+    # the walk's turns (hand-eye rotations) putting the body's axis farther than this from the levelled mounting's
+    # say the ground at the start was not level (or the mounting moved): the status says so (measured 0.1-1.2 deg
+    # on rig captures whose start is level)
+    max_mount_disagreement_deg: float = 3.0
 
     @property
     def suit_capacity(self) -> int:
@@ -91,7 +104,8 @@ class TrajectoryConfig:
 
     def __post_init__(self) -> None:
         if not (self.hold_s > 0.0 and self.map_after_s >= 0.0 and self.record_s > 0.0 and self.scale_window_s > 0.0
-                and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0 and self.suit_rate_hz > 0.0):
+                and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0 and self.suit_rate_hz > 0.0
+                and self.max_mount_disagreement_deg > 0.0):
             raise ValueError(f"invalid {self}")
 
 
@@ -165,7 +179,7 @@ class TrajectoryPipeline:
         self.rotation = PelvisRotation(c.mount.R_M_L, capacity=capacity)
         self.suit = SuitTrack(c.mount, capacity=capacity)
         self.jump = JumpSync(c.jump)
-        self.odometry = LidarOdometry(c.odometry, WearerFilter(c.mount))
+        self.odometry = LidarOdometry(c.odometry, WearerFilter(c.mount.T_M_L))
         self.graph = LiveTrajectoryGraph(c.graph)
         self.stride_scale = StrideScale(c.scale_window_s, c.scale_min_path_m, c.max_scale_error)
         self.map_frame: MapFrame | None = None
@@ -173,6 +187,7 @@ class TrajectoryPipeline:
         self.mount_yaw = MountYawEstimator()
         self.mount_yaw_deg = 0.0  #: how far walking turned it since, about the body's axis
         self.lever = LeverArmEstimator(c.mount.lever_m)
+        self.hand_eye = MountRotationEstimator()  #: the mounting from the walk's turns, a check on the levelled one
         self.site = SiteMap(c.site_map)  #: the whole site, placed by the live odometry (S_live)
         self.mapped = 0  #: steps put in the site map
         self.counts: Counter[str] = Counter()
@@ -210,7 +225,21 @@ class TrajectoryPipeline:
             return f"{self.jump.status}; {len(self._held)} sweeps held"
         if self.map_frame is None:
             return f"synced; fixing the map frame from the first sweeps; {len(self._held)} sweeps to register"
+        check = self.mount_disagreement_deg
+        if check is not None and check > self.config.max_mount_disagreement_deg:
+            return (f"tracking; the walk's turns put the body's axis {check:.1f} deg from the mounting levelled on "
+                    "the ground at the start: that ground was not level, or the mounting moved")
         return f"tracking; catching up with {len(self._held)} sweeps" if self._held else "tracking"
+
+    @property
+    def mount_disagreement_deg(self) -> float | None:
+        """How far the body's axis in L by the walk's turns (:attr:`hand_eye`) is from the mounting's in use (deg);
+        None until the turns give it."""
+        R = self.hand_eye.R_M_L
+        if R is None:
+            return None
+        axis = np.array([0.0, 1.0, 0.0])  # M's y
+        return float(np.degrees(np.arccos(np.clip((R.T @ axis) @ (self._T_L_M[:3, :3] @ axis), -1.0, 1.0))))
 
     @property
     def backlog(self) -> int:
@@ -371,7 +400,8 @@ class TrajectoryPipeline:
         return True
 
     def _level(self, first: _Registered) -> None:
-        """Level the mounting with the map's up at the first sweep and give the odometry gravity."""
+        """Level the mounting with the map's up at the first sweep, give the odometry gravity, and put the map's
+        origin and the sweeps so far through the levelled mounting."""
         up_O = np.linalg.inv(self.map_frame.T_map_O)[:3, 2]
         pelvis = self.suit.pelvis(first.stamp_ns)
         if pelvis is None:
@@ -383,6 +413,17 @@ class TrajectoryPipeline:
                                                                      -1.0, 1.0))))
         self._set_mount_rotation(R_M_L)
         self.odometry.set_gravity(up_O)
+        self.map_frame = self.map_frame.under(first.T_O_L @ self._T_L_M)
+        self._replay_graph()
+
+    def _replay_graph(self) -> None:
+        """Rebuild the live graph from every sweep so far through the mounting as it now stands, and re-pose the
+        sweeps waiting for the map frame (registered through the nominal mounting, before it was levelled)."""
+        self.graph = LiveTrajectoryGraph(self.config.graph)
+        fused = {ns: self.graph.add(ns, None if T_O_L is None else T_O_L @ self._T_L_M, between)
+                 for ns, T_O_L, between in zip(self._stamps, self._landmarks, self._between, strict=True)}
+        self._pending = deque(replace(r, T_O_P=r.T_O_L @ self._T_L_M, fused_T_O_P=fused[r.stamp_ns])
+                              for r in self._pending)
 
     def _turn_mount(self, registered: np.ndarray, predicted: np.ndarray) -> None:
         """Feed one believed sweep's registered and suit-predicted motion (T_Lprev_L) to the mounting's yaw."""
@@ -406,6 +447,7 @@ class TrajectoryPipeline:
         if self.odometry.gravity is not None:  # the suit's T_Lanchor_L, as SuitTrack's
             self._turn_mount(registered, self._T_L_M @ suit @ self._T_M_L)
             self._move_lever(ref, T_O_L, T_I_P)
+            self.hand_eye.add(ref, T_O_L[:3, :3], T_I_P[:3, :3])
 
     def _move_lever(self, ref: int, T_O_L: np.ndarray, T_I_P: np.ndarray) -> None:
         """Feed one believed sweep to the lever arm's estimate; use the estimate when it moved."""
@@ -426,6 +468,7 @@ class TrajectoryPipeline:
         self._T_M_L, self._T_L_M = T_M_L, np.linalg.inv(T_M_L)
         self.suit.set_mount(T_M_L)
         self.rotation.R_M_L = T_M_L[:3, :3]
+        self.odometry.wearer = replace(self.odometry.wearer, T_M_L=T_M_L)
 
     def refine(self) -> tuple[np.ndarray, np.ndarray]:
         """The recorded sweeps' stamps (N,) and pelvis poses T_map_P (N, 4, 4) from the whole graph solved at

@@ -109,6 +109,15 @@ class _Sweep:
     end_ns: int  # the time of its last point
 
 
+def _mount_check(pipe: TrajectoryPipeline) -> str:
+    """The hand-eye check of the levelled mounting, or how far the turns have got towards it."""
+    deg = pipe.mount_disagreement_deg
+    if deg is not None:
+        return f"{deg:.2f}"
+    turned = pipe.hand_eye.excitation_deg
+    return f"not yet (turned {turned[0]:.0f} / {turned[1]:.0f} of {pipe.hand_eye.min_excitation_deg:.0f} deg)"
+
+
 class TrajectoryNode(GraphNode):
     """The fused pelvis trajectory of the HSC4D graph, its map and the suit's clock offset."""
 
@@ -335,6 +344,7 @@ class TrajectoryNode(GraphNode):
             "suit clock offset (ms)": "unknown" if offset is None else f"{offset * 1e-6:.1f}",
             "mounting levelled by (deg)": f"{pipe.mount_levelled_deg:.2f}",
             "mounting turned about the body by (deg)": f"{pipe.mount_yaw_deg:.2f}",
+            "body axis, walk's turns vs levelled (deg)": _mount_check(pipe),
             "lever arm in the pelvis frame (m)": " ".join(f"{v:+.3f}" for v in pipe.lever_m),
             "lever arm sigma (m)": " ".join(f"{v:.3f}" for v in pipe.lever.sigma_m),
             "stride scale of the suit": f"{pipe.stride_scale.value:.3f}",
