@@ -125,6 +125,17 @@ HSC4D = Branch("hsc4d", HIP_LIDAR_TOPIC,
                "latency_ms_", f"{ODOMETRY_TOPIC} published", ("-p", "branch:=hsc4d"))
 
 
+def suit_rate_of_bag(bag: Path) -> float:
+    """The rate (Hz) of an HSC4D bag's suit odometry over the bag's span, which sizes the graph's suit buffers
+    (the contract's 100 Hz unless the suit runs at another); ToolError if the bag has too few of its messages."""
+    info = bag_topics(bag).get(SUIT_ODOMETRY_TOPIC)
+    count = 0 if info is None else info.count
+    first_ns, last_ns = bag_span(bag)
+    if count < 2 or last_ns <= first_ns:
+        raise ToolError(f"{bag}: {count} messages on {SUIT_ODOMETRY_TOPIC}: no suit rate")
+    return (count - 1) / ((last_ns - first_ns) * 1e-9)
+
+
 def branch_of_bag(bag: Path) -> Branch:
     """The branch whose LiDAR the bag has (ToolError if neither)."""
     topics = bag_topics(bag)
@@ -413,6 +424,10 @@ def _run(argv: list[str]) -> int:
         node_args += ["-p", f"calibration_file:={calibration}"]
     elif args.calibration is not None:
         raise ToolError("--calibration is for LIP bags; the HSC4D graph finds its extrinsics from the data")
+    else:
+        suit_hz = suit_rate_of_bag(args.inputs)
+        print(f"suit: {suit_hz:.1f} Hz in the bag (the graph's suit_rate_hz)", flush=True)
+        node_args += ["-p", f"suit_rate_hz:={suit_hz:.1f}"]
     refined = args.outputs.with_name(args.outputs.name + "_refined") if args.refine else None
     if args.refine and branch is LIP:
         raise ToolError("--refine is for HSC4D bags (the offline refinement of the HSC4D branch)")

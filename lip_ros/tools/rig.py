@@ -83,7 +83,7 @@ def _site_bag(args: argparse.Namespace) -> int:
         return 2
     t0 = time.perf_counter()
     capture = SiteCapture(SiteCaptureConfig(seed=args.seed, seconds=args.seconds, columns=args.columns,
-                                            rate_hz=args.rate))
+                                            rate_hz=args.rate, suit_rate_hz=args.suit_rate))
     counts = write_site_bag(capture, args.out, progress=not args.quiet)
     wall = time.perf_counter() - t0
     size = sum(f.stat().st_size for f in args.out.iterdir()) / 1e6
@@ -158,6 +158,8 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--seconds", type=float, default=SiteCaptureConfig.seconds, help="capture length")
     b.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=SiteCaptureConfig.columns)
     b.add_argument("--rate", type=float, choices=(10.0, 20.0), default=SiteCaptureConfig.rate_hz, help="Hz")
+    b.add_argument("--suit-rate", type=float, default=SiteCaptureConfig.suit_rate_hz, metavar="HZ",
+                   help="the suit's IMUs and odometry at this rate (a variant of the contract's 100 Hz)")
     b.add_argument("--out", type=Path, required=True, help="bag directory to create")
     b.add_argument("--quiet", action="store_true", help="no progress output")
     b.set_defaults(func=_site_bag)
