@@ -125,6 +125,24 @@ class MountYawEstimator:
         return float(np.clip(angle, -self.max_correction, self.max_correction))
 
 
+class _Interval:
+    """The sweeps of the last ``2 span``: each new one paired with the oldest kept, at least ``span`` before it."""
+
+    def __init__(self, span_ns: int) -> None:
+        self.span_ns = span_ns
+        self._recent: deque[tuple[int, tuple[np.ndarray, ...]]] = deque()
+
+    def add(self, stamp_ns: int, *values: np.ndarray) -> tuple[np.ndarray, ...] | None:
+        """A sweep's values; the oldest kept sweep's when the interval from it to this one is ``span`` to
+        ``2 span`` long, else None."""
+        recent = self._recent
+        recent.append((int(stamp_ns), tuple(np.asarray(v, dtype=np.float64) for v in values)))
+        while len(recent) > 1 and recent[1][0] <= stamp_ns - self.span_ns:
+            recent.popleft()
+        start_ns, start = recent[0]
+        return start if self.span_ns <= stamp_ns - start_ns <= 2 * self.span_ns else None
+
+
 class LeverArmEstimator:
     """The lever arm (the sensor's origin in the pelvis frame) from walking: the translation of hand-eye
     calibration. Over an interval of about ``span_s`` between two believed sweeps, the pelvis moves by t_P in its
@@ -157,7 +175,7 @@ class LeverArmEstimator:
         self._weight = 1.0 / noise_m**2
         self._normal = prior
         self._rhs = prior @ np.array([*self.nominal[list(self.AXES)], 1.0])
-        self._recent: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        self._interval = _Interval(self.span_ns)
         self._last_update_ns: int | None = None
         self.lever_m = self.nominal.copy()  #: the estimate last returned
         self.intervals = 0  #: intervals used
@@ -178,21 +196,18 @@ class LeverArmEstimator:
         """One believed sweep: the LiDAR's registered pose (4, 4) in its odometry frame, the suit's pelvis pose
         (4, 4) in the suit's world and the mounting's rotation in use; the new lever (3,) when an update is due
         and it moved, else None."""
-        recent = self._recent
-        recent.append((int(stamp_ns), np.asarray(T_O_L, dtype=np.float64), np.asarray(T_I_P, dtype=np.float64)))
-        while len(recent) > 1 and recent[1][0] <= stamp_ns - self.span_ns:
-            recent.popleft()
-        start_ns, L0, P0 = recent[0]
-        if not self.span_ns <= stamp_ns - start_ns <= 2 * self.span_ns:
+        start = self._interval.add(stamp_ns, T_O_L, T_I_P)
+        if start is None:
             return None
+        L0, P0 = start
         up = P0[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the suit's up in the pelvis frame
         side = np.cross(up, [0.0, 0.0, 1.0])  # the pelvis frame's z is forward: across it, horizontally
         if np.linalg.norm(side) < 0.5:  # bent over by more than 60 deg: no pelvis frame horizontal to use
             return None
         side /= np.linalg.norm(side)
         H = np.stack([side, np.cross(up, side)])  # (2, 3) the horizontal directions
-        A = np.linalg.inv(L0) @ recent[-1][1]  # T_L0_L1
-        B = np.linalg.inv(P0) @ recent[-1][2]  # T_P0_P1, the suit's
+        A = np.linalg.inv(L0) @ T_O_L  # T_L0_L1
+        B = np.linalg.inv(P0) @ T_I_P  # T_P0_P1, the suit's
         turn = H @ (R_M_L @ A[:3, :3] @ R_M_L.T - np.eye(3))
         J = np.column_stack([turn[:, list(self.AXES)], H @ B[:3, 3]])
         y = H @ R_M_L @ A[:3, 3] - turn[:, 1] * self.nominal[1]
@@ -228,7 +243,7 @@ class MountRotationEstimator:
         if not (span_s > 0.0 and min_excitation_deg > 0.0):
             raise ValueError(f"invalid span {span_s} or excitation {min_excitation_deg}")
         self.span_ns, self.min_excitation_deg = int(span_s * 1e9), min_excitation_deg
-        self._recent: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        self._interval = _Interval(self.span_ns)
         self._cross = np.zeros((3, 3))  # sum of r_P r_L^T
         self._scatter = np.zeros((3, 3))  # sum of r_L r_L^T
         self.intervals = 0  #: intervals used
@@ -236,15 +251,12 @@ class MountRotationEstimator:
     def add(self, stamp_ns: int, R_O_L: np.ndarray, R_I_P: np.ndarray) -> None:
         """One believed sweep: the LiDAR's registered rotation (3, 3) in its odometry frame and the suit's pelvis
         rotation (3, 3) in the suit's world."""
-        recent = self._recent
-        recent.append((int(stamp_ns), np.asarray(R_O_L, dtype=np.float64), np.asarray(R_I_P, dtype=np.float64)))
-        while len(recent) > 1 and recent[1][0] <= stamp_ns - self.span_ns:
-            recent.popleft()
-        start_ns, L0, P0 = recent[0]
-        if not self.span_ns <= stamp_ns - start_ns <= 2 * self.span_ns:
+        start = self._interval.add(stamp_ns, R_O_L, R_I_P)
+        if start is None:
             return
-        r_L = matrix_to_axis_angle(L0.T @ recent[-1][1])
-        r_P = matrix_to_axis_angle(P0.T @ recent[-1][2])
+        L0, P0 = start
+        r_L = matrix_to_axis_angle(L0.T @ R_O_L)
+        r_P = matrix_to_axis_angle(P0.T @ R_I_P)
         self._cross += np.outer(r_P, r_L)
         self._scatter += np.outer(r_L, r_L)
         self.intervals += 1

@@ -422,9 +422,9 @@ def _run(argv: list[str]) -> int:
     if branch is LIP:
         _start_calibration(calibration, args.calibration)
         node_args += ["-p", f"calibration_file:={calibration}"]
-    elif args.calibration is not None:
-        raise ToolError("--calibration is for LIP bags; the HSC4D graph finds its extrinsics from the data")
     else:
+        if args.calibration is not None:
+            raise ToolError("--calibration is for LIP bags; the HSC4D graph finds its extrinsics from the data")
         suit_hz = suit_rate_of_bag(args.inputs)
         print(f"suit: {suit_hz:.1f} Hz in the bag (the graph's suit_rate_hz)", flush=True)
         node_args += ["-p", f"suit_rate_hz:={suit_hz:.1f}"]
