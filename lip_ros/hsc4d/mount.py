@@ -58,11 +58,6 @@ class HipMountPrior:
         """(4, 4) the pelvis in the nominal sensor frame."""
         return np.linalg.inv(self.T_M_L)
 
-    @property
-    def pelvis_in_lidar(self) -> np.ndarray:
-        """(3,) the pelvis origin in L."""
-        return -self.R_M_L.T @ np.asarray(self.lever_m)
-
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(3, 3) the smallest rotation taking the direction ``a`` (3,) onto ``b`` (3,)."""

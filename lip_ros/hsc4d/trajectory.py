@@ -417,11 +417,14 @@ class TrajectoryPipeline:
         self._replay_graph()
 
     def _replay_graph(self) -> None:
-        """Rebuild the live graph from every sweep so far through the mounting as it now stands, and re-pose the
-        sweeps waiting for the map frame (registered through the nominal mounting, before it was levelled)."""
+        """Rebuild the live graph through the mounting as it now stands from the sweeps waiting for the map frame
+        (registered through the nominal mounting, before it was levelled) and the smoother's lag before them, and
+        re-pose those sweeps."""
         self.graph = LiveTrajectoryGraph(self.config.graph)
+        start_ns = self._pending[0].stamp_ns - int(self.config.graph.lag_s * 1e9)
         fused = {ns: self.graph.add(ns, None if T_O_L is None else T_O_L @ self._T_L_M, between)
-                 for ns, T_O_L, between in zip(self._stamps, self._landmarks, self._between, strict=True)}
+                 for ns, T_O_L, between in zip(self._stamps, self._landmarks, self._between, strict=True)
+                 if ns >= start_ns}
         self._pending = deque(replace(r, T_O_P=r.T_O_L @ self._T_L_M, fused_T_O_P=fused[r.stamp_ns])
                               for r in self._pending)
 
