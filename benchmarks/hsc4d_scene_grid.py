@@ -29,8 +29,9 @@ import numpy as np
 
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d import evaluation as ev
-from lip_ros.hsc4d.refinement import FEET, CaptureRefiner
+from lip_ros.hsc4d.refinement import CaptureRefiner
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, stance_from_suit
+from lip_ros.hsc4d.suit_body import FEET
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 _KEYS = ("ate_m", "vertical_m", "checkpoint_m", "contact_m", "sliding_m")

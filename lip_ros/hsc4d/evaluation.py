@@ -51,9 +51,9 @@ import numpy as np
 from lip_ros.core.metrics import align_yaw_translation, mpjpe
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d.lidar_odometry import NOT_REGISTERED, KissIcpAlone
-from lip_ros.hsc4d.refinement import FEET, CaptureRefiner, RefinementConfig
+from lip_ros.hsc4d.refinement import CaptureRefiner, RefinementConfig
 from lip_ros.hsc4d.scene_optimisation import TERMS, SceneOptimisationConfig, optimise_sequence, without
-from lip_ros.hsc4d.suit_body import moved_body
+from lip_ros.hsc4d.suit_body import FEET, bent_legs, leg_chains, moved_body
 from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.rig.mesh_raycast import MeshRaycaster
 from lip_ros.rig.site_capture import SiteCapture
@@ -188,10 +188,13 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
     joints = {name: moved_body(live.body, live.pelvis, T).joints for name, T in poses.items()}
     joints["baseline1_suit"], joints["refined"] = live.suit_joints, refined.body.joints
     feet = [load_skeleton().index(f) for f in FEET]
-    result = optimise_sequence(t_s, live.pelvis, live.body.joints[:, feet], live.suit_pelvis[:, :3, 3],
-                               live.suit_joints[:, feet], lambda k: next(m for last, m in maps if last >= k), scene)
+    skeleton = refiner.body.skeleton
+    result = optimise_sequence(t_s, live.pelvis, *leg_chains(skeleton, live.body.local_rot),
+                               live.suit_pelvis[:, :3, 3], live.suit_joints[:, feet],
+                               lambda k: next(m for last, m in maps if last >= k), scene)
     poses["live_optimised"] = result.pelvis
-    joints["live_optimised"] = moved_body(live.body, live.pelvis, result.pelvis).joints
+    joints["live_optimised"] = bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton,
+                                         result.legs).joints
     for term, name in zip(TERMS, ABLATIONS, strict=True):
         ablated = refiner.refine(without(scene, term), refined.sole_m)
         poses[name], joints[name] = ablated.pelvis, ablated.body.joints

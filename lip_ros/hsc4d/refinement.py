@@ -32,13 +32,10 @@ import numpy as np
 from lip_ros.core.imu_sync import ImuSampleLike
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, optimise_sequence
-from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body
+from lip_ros.hsc4d.suit_body import FEET, BodyPose, SuitBody, SuitBodyConfig, bent_legs, leg_chains, moved_body
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 
-__all__ = ["RefinementConfig", "LiveRecord", "Refinement", "CaptureRefiner", "FEET"]
-
-#: the joints the scene-aware optimisation places on the ground
-FEET = ("left_foot", "right_foot")
+__all__ = ["RefinementConfig", "LiveRecord", "Refinement", "CaptureRefiner"]
 
 
 @dataclass(frozen=True)
@@ -171,15 +168,15 @@ class CaptureRefiner:
         graph = all_graph[k]
         graph_map = self._shifted(live.pelvis, graph)  # the feet meet the ground as their own trajectory puts it
         t_s = (live.stamps_ns - live.stamps_ns[0]) * 1e-9
-        on_graph = moved_body(live.body, live.pelvis, graph)
+        skeleton = self.body.skeleton
         t0 = time.perf_counter()
-        result = optimise_sequence(t_s, graph, on_graph.joints[:, self._feet], live.suit_pelvis[:, :3, 3],
+        result = optimise_sequence(t_s, graph, *leg_chains(skeleton, live.body.local_rot), live.suit_pelvis[:, :3, 3],
                                    live.suit_joints[:, self._feet], lambda _: graph_map, scene or self.config.scene,
                                    sole_m)
         window_s = np.full(len(result.windows), (time.perf_counter() - t0) / max(len(result.windows), 1))
-        return Refinement(live.stamps_ns, graph, result.pelvis, moved_body(live.body, live.pelvis, result.pelvis),
-                          self._shifted(live.pelvis, result.pelvis), result.sole_m, window_s,
-                          time.perf_counter() - start)
+        body = bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton, result.legs)
+        return Refinement(live.stamps_ns, graph, result.pelvis, body, self._shifted(live.pelvis, result.pelvis),
+                          result.sole_m, window_s, time.perf_counter() - start)
 
     def _shifted(self, live: np.ndarray, to: np.ndarray) -> np.ndarray:
         """(M, 3) the site map rebuilt with each sweep shifted as its pelvis moved from ``live`` to ``to`` (N, 4, 4),

@@ -1,10 +1,12 @@
 """Scene-aware joint optimisation of the fused body over windows of frames (the paper's section 4.5; the one HSC4D
 module that imports torch), ROS-free.
 
-Given per frame the fused pelvis pose (translation ``t0``, rotation ``R0``), each foot joint's offset from the
-pelvis in ``map`` as the suit's joint rotations put it, which foot stands (from the suit's own foot motion,
-:func:`stance_from_suit`) and the LiDAR map's points, :func:`optimise_window` moves the pelvis translation and
-turns the whole body about the pelvis (a small rotation per frame) to minimise
+Given per frame the fused pelvis pose (translation ``t0``, rotation ``R0``), each leg's joint rotations as the
+suit puts them and its bones (the hip, knee and ankle: :func:`~lip_ros.hsc4d.suit_body.leg_chains`), which foot
+stands (from the suit's own foot motion, :func:`stance_from_suit`) and the LiDAR map's points,
+:func:`optimise_window` moves the pelvis translation, turns the whole body about the pelvis (a small rotation per
+frame) and turns each leg's hip, knee and ankle (the paper optimises the pose theta as well as the translation) to
+minimise
 
 * **contact**: each stance's mean height of the foot above the ground plane under it, less the sole's height (the
   ground: a plane fitted by RANSAC to the map's points within ``radius_m`` of the foot and from ``below_m`` under
@@ -17,12 +19,15 @@ turns the whole body about the pelvis (a small rotation per frame) to minimise
 * **smoothness**: the pelvis's horizontal step from frame to frame against the suit's (the paper's: move as smoothly
   as the suit; horizontal, since the suit's odometry knows no stairs and no jumps; the suit's steps scaled by the
   window's path over theirs, since its stride scale is off by a few per cent);
-* **prior**: the translation's distance from the fused one (the landmarks' hold on the window).
+* **prior**: the translation's distance from the fused one (the landmarks' hold on the window);
+* **pose**: the legs' joints' turn away from the suit's rotations and its change from frame to frame (the pose
+  prior: the suit measures every leg segment; a stance's edges, where the foot rolls, and the suit's own errors
+  are where the feet slide).
 
 Each term is a mean over the window, weighted (:class:`SceneOptimisationConfig`); a weight of zero drops the term
-(the ablation). The suit's joint rotations are kept as they are (the pose prior, held fixed: the limbs' pose comes
-from 17 sensors and the scene has nothing to say about it beyond the feet, which these terms already place).
-L-BFGS in double precision solves a window of 100 frames in well under a second.
+(the ablation; without the pose prior the legs are free). The rest of the body keeps the suit's joint rotations:
+the scene has nothing to say about it. L-BFGS in double precision solves a window of 100 frames in well under a
+second.
 """
 
 from __future__ import annotations
@@ -37,11 +42,11 @@ from lip_ros.core.ground_plane import fit_ground_plane
 from lip_ros.core.torch_kinematics import axis_angle_to_matrix
 
 __all__ = ["SceneOptimisationConfig", "WindowInput", "WindowResult", "TERMS", "stance_from_suit",
-           "fit_foot_planes", "optimise_window", "without", "SequenceResult", "sole_height", "SceneOptimiser",
-           "optimise_sequence"]
+           "fit_foot_planes", "leg_offsets", "feet_offsets", "optimise_window", "without", "SequenceResult",
+           "sole_height", "SceneOptimiser", "optimise_sequence"]
 
 #: the loss terms, in report order
-TERMS = ("contact", "sliding", "orientation", "smoothness", "prior")
+TERMS = ("contact", "sliding", "orientation", "smoothness", "prior", "pose")
 
 
 _MAX_WAIT_WINDOWS = 4  # the bound on the frames waiting for the first window's ground
@@ -68,6 +73,9 @@ class SceneOptimisationConfig:
     orientation: float = 1.0  # ... per rad^2 of the turn away from the fused rotation and of its change
     smoothness: float = 1.0  # ... per m^2 of a frame's horizontal step length off the suit's
     prior: float = 1.0  # ... per m^2 of the translation's distance from the fused one
+    # ... per rad^2 of the legs' six joints' summed squared turn from the suit's and of its change; chosen on the
+    # development captures (docs/hsc4d/optimisation.md): 1 took out half as much sliding, 0.1 cost MPJPE
+    pose: float = 0.3
     iterations: int = 60  # L-BFGS iterations per window
     # the first window waits for a map that shows the ground under its feet (mapped once the wearer walked away from
     # the start) for a window more, or this long if that is more (two 100-frame windows are 10 s at 20 Hz: the
@@ -92,14 +100,16 @@ def without(config: SceneOptimisationConfig, term: str) -> SceneOptimisationConf
 @dataclass(frozen=True)
 class WindowInput:
     """One window of N frames: the fused pelvis translations ``t0`` (N, 3) and rotations ``R0`` (N, 3, 3) in
-    ``map``, the foot joints' offsets from the pelvis (N, 2, 3) in ``map`` (left, right), which foot stands (N, 2)
+    ``map``, each leg's (left, right) hip, knee and ankle local rotations as the suit gives them (N, 2, 3, 3, 3) and
+    its bones (N, 2, 4, 3; :func:`~lip_ros.hsc4d.suit_body.leg_chains`), which foot stands (N, 2)
     and the ground plane under it (N, 2, 4: unit normal and offset, ``n . p + d = 0``; NaN where none), the suit's
     pelvis horizontal step length into each frame (N,; the first is used only with ``before``); ``before``:
     the previous window's last frame as optimised (its translation (3,) and feet (2, 3)), or None."""
 
     t0: np.ndarray
     R0: np.ndarray
-    offsets: np.ndarray
+    legs: np.ndarray
+    bones: np.ndarray
     stance: np.ndarray
     planes: np.ndarray
     suit_steps: np.ndarray
@@ -108,11 +118,12 @@ class WindowInput:
 
 @dataclass(frozen=True)
 class WindowResult:
-    """The optimised pelvis translations (N, 3) and rotations (N, 3, 3), the feet (N, 2, 3), and each term's value
-    before and after (unweighted)."""
+    """The optimised pelvis translations (N, 3) and rotations (N, 3, 3), the legs' local rotations (N, 2, 3, 3, 3),
+    the feet (N, 2, 3), and each term's value before and after (unweighted)."""
 
     t: np.ndarray
     R: np.ndarray
+    legs: np.ndarray
     feet: np.ndarray
     before: dict[str, float]
     after: dict[str, float]
@@ -159,12 +170,39 @@ def fit_foot_planes(feet: np.ndarray, stance: np.ndarray, points: np.ndarray, rn
     return out
 
 
-def _terms(t: torch.Tensor, rot: torch.Tensor, window: WindowInput, sole_m: float, c: SceneOptimisationConfig,
-           t0: torch.Tensor, offsets: torch.Tensor, planes: torch.Tensor, stance: torch.Tensor, runs: torch.Tensor
-           ) -> dict[str, torch.Tensor]:
-    """Each term's value (unweighted) for translations ``t`` (N, 3) and body turns ``rot`` (axis-angle, N, 3)."""
+def leg_offsets(R0: torch.Tensor, legs: torch.Tensor, bones: torch.Tensor, turns: torch.Tensor) -> torch.Tensor:
+    """(N, 2, 3) each foot joint's offset from the pelvis: the pelvis rotations ``R0`` (N, 3, 3), the legs' local
+    rotations ``legs`` (N, 2, 3, 3, 3) each turned by ``turns`` (N, 2, 3, 3: axis-angle, before it) and the bones
+    (N, 2, 4, 3)."""
+    n = len(R0)
+    glob = R0[:, None].expand(n, 2, 3, 3)
+    offset = torch.einsum("nkab,nkb->nka", glob, bones[:, :, 0])
+    for j in range(3):
+        glob = glob @ axis_angle_to_matrix(turns[:, :, j].reshape(-1, 3)).view(n, 2, 3, 3) @ legs[:, :, j]
+        offset = offset + torch.einsum("nkab,nkb->nka", glob, bones[:, :, j + 1])
+    return offset
+
+
+def feet_offsets(R0: np.ndarray, legs: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """(N, 2, 3) each foot joint's offset from the pelvis as the legs stand (:func:`leg_offsets`, not turned)."""
+    with torch.no_grad():
+        R0_, legs_, bones_ = (torch.as_tensor(a, dtype=torch.float64) for a in (R0, legs, bones))
+        return leg_offsets(R0_, legs_, bones_, torch.zeros(legs_.shape[:3] + (3,), dtype=torch.float64)).numpy()
+
+
+def _step_mean(x: torch.Tensor) -> torch.Tensor:
+    """The mean squared change of ``x`` (N, ...) from one frame to the next, summed over its other dimensions."""
+    return ((x[1:] - x[:-1]) ** 2).flatten(1).sum(-1).mean() if len(x) > 1 else x.new_zeros(())
+
+
+def _terms(t: torch.Tensor, rot: torch.Tensor, turns: torch.Tensor, window: WindowInput, sole_m: float,
+           c: SceneOptimisationConfig, fixed: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+    """Each term's value (unweighted) and the feet (N, 2, 3) for translations ``t`` (N, 3), body turns ``rot``
+    (axis-angle, N, 3) and the legs' joints' turns ``turns`` (N, 2, 3, 3); ``fixed``: the window's tensors."""
+    offsets = leg_offsets(fixed["R0"], fixed["legs"], fixed["bones"], turns)
     feet = t[:, None, :] + torch.einsum("nab,nkb->nka", axis_angle_to_matrix(rot), offsets)  # (N, 2, 3)
     zero = t.new_zeros(())
+    runs, planes, stance = fixed["runs"], fixed["planes"], fixed["stance"]
     has_plane = runs >= 0
     if has_plane.any():
         p = planes[has_plane]
@@ -182,13 +220,14 @@ def _terms(t: torch.Tensor, rot: torch.Tensor, window: WindowInput, sole_m: floa
         all_stance = torch.cat([stance[:1], stance])  # the frame before counts as standing as the first does
     both = all_stance[1:] & all_stance[:-1]
     sliding = ((all_feet[1:] - all_feet[:-1])[both] ** 2).sum(-1).mean() if both.any() else zero
-    orientation = (rot**2).sum(-1).mean() + (((rot[1:] - rot[:-1]) ** 2).sum(-1).mean() if len(rot) > 1 else zero)
+    orientation = (rot**2).sum(-1).mean() + _step_mean(rot)
     steps = torch.linalg.norm(all_t[1:, :2] - all_t[:-1, :2], dim=-1)  # horizontal: the suit knows no heights
     suit = torch.as_tensor(window.suit_steps[-len(steps):], dtype=t.dtype) if len(steps) else steps
     smoothness = ((steps - suit) ** 2).mean() if len(steps) else zero
-    prior = ((t - t0) ** 2).sum(-1).mean()
+    prior = ((t - fixed["t0"]) ** 2).sum(-1).mean()
+    pose = (turns**2).flatten(1).sum(-1).mean() + _step_mean(turns)
     return {"contact": contact, "sliding": sliding, "orientation": orientation, "smoothness": smoothness,
-            "prior": prior}
+            "prior": prior, "pose": pose}, feet
 
 
 def stance_runs(stance: np.ndarray) -> np.ndarray:
@@ -209,45 +248,48 @@ def optimise_window(window: WindowInput, sole_m: float, config: SceneOptimisatio
     """Optimise one window (module docstring); ``sole_m``: how far the foot joint stands above its sole."""
     c = config or SceneOptimisationConfig()
     dtype = torch.float64
-    t0 = torch.as_tensor(window.t0, dtype=dtype)
-    offsets = torch.as_tensor(window.offsets, dtype=dtype)
-    planes = torch.as_tensor(window.planes, dtype=dtype)
-    stance = torch.as_tensor(window.stance, dtype=torch.bool)
-    runs = torch.as_tensor(stance_runs(window.stance & np.isfinite(window.planes).all(-1)))
-    t = t0.clone().requires_grad_(True)
-    rot = torch.zeros_like(t0).requires_grad_(True)
+    fixed = {name: torch.as_tensor(getattr(window, name), dtype=dtype) for name in ("t0", "R0", "legs", "bones",
+                                                                                    "planes")}
+    fixed["stance"] = torch.as_tensor(window.stance, dtype=torch.bool)
+    fixed["runs"] = torch.as_tensor(stance_runs(window.stance & np.isfinite(window.planes).all(-1)))
+    t = fixed["t0"].clone().requires_grad_(True)
+    rot = torch.zeros_like(t).requires_grad_(True)
+    turns = torch.zeros(window.legs.shape[:3] + (3,), dtype=dtype, requires_grad=True)
     weights = {name: getattr(c, name) for name in TERMS}
 
-    def evaluate() -> dict[str, torch.Tensor]:
-        return _terms(t, rot, window, sole_m, c, t0, offsets, planes, stance, runs)
+    def evaluate() -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        return _terms(t, rot, turns, window, sole_m, c, fixed)
 
     with torch.no_grad():
-        before = {k: float(v) for k, v in evaluate().items()}
-    optimiser = torch.optim.LBFGS([t, rot], lr=1.0, max_iter=c.iterations, line_search_fn="strong_wolfe",
+        before = {k: float(v) for k, v in evaluate()[0].items()}
+    optimiser = torch.optim.LBFGS([t, rot, turns], lr=1.0, max_iter=c.iterations, line_search_fn="strong_wolfe",
                                   tolerance_grad=1e-12, tolerance_change=1e-14)
 
     def closure() -> torch.Tensor:
         optimiser.zero_grad()
-        terms = evaluate()
+        terms = evaluate()[0]
         loss = sum(weights[k] * terms[k] for k in TERMS)
         loss.backward()
         return loss
 
     optimiser.step(closure)
     with torch.no_grad():
-        after = {k: float(v) for k, v in evaluate().items()}
+        terms, feet = evaluate()
+        after = {k: float(v) for k, v in terms.items()}
+        n = len(t)
+        legs = (axis_angle_to_matrix(turns.reshape(-1, 3)).view(n, 2, 3, 3, 3) @ fixed["legs"]).numpy()
         R_turn = axis_angle_to_matrix(rot).numpy()
-        feet = (t[:, None, :] + torch.einsum("nab,nkb->nka", axis_angle_to_matrix(rot), offsets)).numpy()
-    return WindowResult(t.detach().numpy().copy(), R_turn @ window.R0, feet, before, after)
-
+    return WindowResult(t.detach().numpy().copy(), R_turn @ window.R0, legs, feet.numpy(), before, after)
 
 
 @dataclass(frozen=True)
 class SequenceResult:
-    """A whole sequence optimised window by window: pelvis poses T_map_P (N, 4, 4), feet (N, 2, 3), which foot
-    stood (N, 2), the planes found (N, 2, 4), the sole height used (m) and each window's terms before and after."""
+    """A whole sequence optimised window by window: pelvis poses T_map_P (N, 4, 4), the legs' local rotations
+    (N, 2, 3, 3, 3), feet (N, 2, 3), which foot stood (N, 2), the planes found (N, 2, 4), the sole height used (m)
+    and each window's terms before and after."""
 
     pelvis: np.ndarray
+    legs: np.ndarray
     feet: np.ndarray
     stance: np.ndarray
     planes: np.ndarray
@@ -299,15 +341,16 @@ class SceneOptimiser:
             n = max(n, int(round(c.max_wait_s * rate_hz)))
         return min(n, _MAX_WAIT_WINDOWS * c.window)
 
-    def add(self, t_s: float, pelvis: np.ndarray, feet: np.ndarray, suit_pelvis: np.ndarray,
+    def add(self, t_s: float, pelvis: np.ndarray, legs: np.ndarray, bones: np.ndarray, suit_pelvis: np.ndarray,
             suit_feet: np.ndarray) -> None:
-        """One frame at ``t_s`` (s): the fused pelvis pose T_map_P (4, 4) and feet (2, 3) in ``map``, the pelvis
-        (3,) and feet (2, 3) as the suit alone places them (any frame). Refused (RuntimeError) beyond
-        :attr:`capacity`: optimise or drop first."""
+        """One frame at ``t_s`` (s): the fused pelvis pose T_map_P (4, 4) in ``map``, the legs' local rotations
+        (2, 3, 3, 3) and bones (2, 4, 3) (:func:`~lip_ros.hsc4d.suit_body.leg_chains`), the pelvis (3,) and feet
+        (2, 3) as the suit alone places them (any frame). Refused (RuntimeError) beyond :attr:`capacity`: optimise
+        or drop first."""
         if len(self._frames) >= self.capacity:
             raise RuntimeError(f"{len(self._frames)} frames are waiting: optimise or drop first")
-        self._frames.append((float(t_s), np.asarray(pelvis, dtype=np.float64), np.asarray(feet, dtype=np.float64),
-                             np.asarray(suit_pelvis, dtype=np.float64), np.asarray(suit_feet, dtype=np.float64)))
+        self._frames.append(tuple(np.asarray(a, dtype=np.float64) for a in (t_s, pelvis, legs, bones, suit_pelvis,
+                                                                             suit_feet)))
 
     def drop(self, n: int | None = None) -> int:
         """Forget the oldest ``n`` frames waiting (None: all) and the continuity with the window before them (a
@@ -326,8 +369,10 @@ class SceneOptimiser:
             raise ValueError("no frames to optimise")
         c = self.config
         frames = self._frames[: c.window]
-        t_s, pelvis, feet, suit_pelvis, suit_feet = (np.array(a) for a in zip(*frames, strict=True))
+        t_s, pelvis, legs, bones, suit_pelvis, suit_feet = (np.array(a) for a in zip(*frames, strict=True))
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        t0 = pelvis[:, :3, 3]
+        feet = t0[:, None, :] + feet_offsets(pelvis[:, :3, :3], legs, bones)
         stance = stance_from_suit(suit_feet, t_s, c.stance_speed_mps)
         planes = fit_foot_planes(feet, stance, points, self._rng, c)
         sole = self.sole_m if self.sole_m is not None else sole_height(feet, stance, planes)
@@ -341,33 +386,35 @@ class SceneOptimiser:
         if self._last_suit is None:
             suit_steps = np.concatenate([[0.0], suit_steps])
         scale = fused_steps.sum() / suit_steps[1:].sum() if suit_steps[1:].sum() > 0.0 else 1.0
-        t0 = pelvis[:, :3, 3]
-        result = optimise_window(WindowInput(t0, pelvis[:, :3, :3], feet - t0[:, None, :], stance, planes,
+        result = optimise_window(WindowInput(t0, pelvis[:, :3, :3], legs, bones, stance, planes,
                                              scale * suit_steps, self._before), self.sole_m, c)
         self._before, self._last_suit = (result.t[-1], result.feet[-1]), suit_pelvis[-1]
         del self._frames[: len(frames)]
         return result, stance, planes
 
 
-def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, feet: np.ndarray, suit_pelvis: np.ndarray,
-                      suit_feet: np.ndarray, map_at: Callable[[int], np.ndarray],
+def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bones: np.ndarray,
+                      suit_pelvis: np.ndarray, suit_feet: np.ndarray, map_at: Callable[[int], np.ndarray],
                       config: SceneOptimisationConfig | None = None, sole_m: float | None = None,
                       seed: int = 0) -> SequenceResult:
     """Optimise N frames at times ``t_s`` in windows of ``config.window``, each once its last frame is in (as a
-    live optimiser one window behind would): the fused pelvis poses T_map_P (N, 4, 4) and feet (N, 2, 3) in
-    ``map``, the pelvis (N, 3) and the feet (N, 2, 3) as the suit alone places them (any frame: for the step
-    lengths and the stance), the map's points when frame ``k`` was the newest (``map_at(k)``, (M, 3) in
-    ``map``), with a :class:`SceneOptimiser`. ``sole_m`` None: measured in the first window (:func:`sole_height`)
-    on the first map that shows the ground under its feet, the window waiting for it as long as the optimiser's
+    live optimiser one window behind would): the fused pelvis poses T_map_P (N, 4, 4) in ``map``, the legs' local
+    rotations (N, 2, 3, 3, 3) and bones ((N,) 2, 4, 3) (:func:`~lip_ros.hsc4d.suit_body.leg_chains`), the pelvis
+    (N, 3) and the feet (N, 2, 3) as the suit alone places them (any frame: for the step lengths and the stance),
+    the map's points when frame ``k`` was the newest (``map_at(k)``, (M, 3) in ``map``), with a
+    :class:`SceneOptimiser`. ``sole_m`` None: measured in the first window (:func:`sole_height`) on the first map
+    that shows the ground under its feet, the window waiting for it as long as the optimiser's
     :attr:`SceneOptimiser.capacity` allows (then it is left as fused); ValueError if none does by the end."""
     optimiser = SceneOptimiser(config, sole_m, seed)
-    out_pelvis, out_feet = pelvis.copy(), feet.copy()
+    bones = np.broadcast_to(bones, legs.shape[:2] + (4, 3)).copy()
+    out_pelvis, out_legs = pelvis.copy(), np.array(legs, dtype=np.float64)
+    out_feet = pelvis[:, None, :3, 3] + feet_offsets(pelvis[:, :3, :3], legs, bones)
     stance = np.zeros((len(t_s), 2), dtype=bool)
     planes = np.full((len(t_s), 2, 4), np.nan)
     windows: list[WindowResult] = []
     done = 0  # the first frame not optimised (or skipped) yet
     for k in range(len(t_s)):
-        optimiser.add(t_s[k], pelvis[k], feet[k], suit_pelvis[k], suit_feet[k])
+        optimiser.add(t_s[k], pelvis[k], legs[k], bones[k], suit_pelvis[k], suit_feet[k])
         last = k == len(t_s) - 1
         while optimiser.full or (last and len(optimiser)):
             try:
@@ -380,10 +427,11 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, feet: np.ndarray, sui
                 done += optimiser.drop(optimiser.config.window)  # those frames stay as fused
                 continue
             w = slice(done, done + len(result.t))
-            out_pelvis[w, :3, :3], out_pelvis[w, :3, 3], out_feet[w] = result.R, result.t, result.feet
+            out_pelvis[w, :3, :3], out_pelvis[w, :3, 3], out_legs[w], out_feet[w] = (result.R, result.t, result.legs,
+                                                                                      result.feet)
             stance[w], planes[w] = st, pl
             windows.append(result)
             done = w.stop
     if optimiser.sole_m is None:
         raise ValueError("no standing foot with a ground plane: no sole height")
-    return SequenceResult(out_pelvis, out_feet, stance, planes, float(optimiser.sole_m), windows)
+    return SequenceResult(out_pelvis, out_legs, out_feet, stance, planes, float(optimiser.sole_m), windows)

@@ -26,7 +26,14 @@ from lip_ros.core.imu_sync import FrameStatus, ImuSampleLike, ImuSynchronizer, S
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, quat_to_matrix
 from lip_ros.core.skeleton import NUM_JOINTS, Skeleton, forward_kinematics
 
-__all__ = ["SuitBodyConfig", "BodyPose", "SuitBody", "unmeasured_chains", "moved_body"]
+__all__ = ["SuitBodyConfig", "BodyPose", "SuitBody", "unmeasured_chains", "moved_body", "LEGS", "FEET", "leg_chains",
+           "bent_legs"]
+
+#: each leg's joints from the hip down to the foot joint (left, right): the scene-aware optimisation turns the hip,
+#: knee and ankle to place the foot
+LEGS = (("left_hip", "left_knee", "left_ankle", "left_foot"), ("right_hip", "right_knee", "right_ankle", "right_foot"))
+#: the joints placed on the ground
+FEET = tuple(leg[-1] for leg in LEGS)
 
 
 @dataclass(frozen=True)
@@ -64,6 +71,24 @@ def moved_body(pose: BodyPose, T_from: np.ndarray, T_to: np.ndarray) -> BodyPose
     local[..., 0, :, :] = turn @ local[..., 0, :, :]
     joints = T_to[..., None, :3, 3] + np.einsum("...ab,...jb->...ja", turn, pose.joints - T_from[..., None, :3, 3])
     return BodyPose(local, turn[..., None, :, :] @ pose.glob_rot, joints)
+
+
+def leg_chains(skeleton: Skeleton, local_rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each leg (:data:`LEGS`) of a body: the hip's, knee's and ankle's local rotations (..., 2, 3, 3, 3) of
+    ``local_rot`` (..., 24, 3, 3), and the skeleton's bones down the leg (2, 4, 3): the hip from the pelvis, the
+    knee from the hip, the ankle from the knee, the foot joint from the ankle (rest offsets, parent's frame)."""
+    joints = np.array([[skeleton.index(name) for name in leg] for leg in LEGS])
+    return np.asarray(local_rot)[..., joints[:, :3], :, :], skeleton.offsets[joints].copy()
+
+
+def bent_legs(pose: BodyPose, skeleton: Skeleton, legs: np.ndarray) -> BodyPose:
+    """``pose`` (any leading dimensions) with the hips', knees' and ankles' local rotations replaced by ``legs``
+    (..., 2, 3, 3, 3; :func:`leg_chains`), the rest of the body and the pelvis kept."""
+    joints = np.array([[skeleton.index(name) for name in leg[:3]] for leg in LEGS])
+    local = pose.local_rot.copy()
+    local[..., joints, :, :] = legs
+    glob, positions = forward_kinematics(skeleton, local, pose.joints[..., 0, :])
+    return BodyPose(local, glob, positions)
 
 
 def unmeasured_chains(skeleton: Skeleton, measured: set[int]) -> list[tuple[int, list[int]]]:

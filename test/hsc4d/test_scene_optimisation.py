@@ -11,6 +11,7 @@ from lip_ros.hsc4d.scene_optimisation import (
     TERMS,
     SceneOptimisationConfig,
     SceneOptimiser,
+    feet_offsets,
     fit_foot_planes,
     optimise_sequence,
     sole_height,
@@ -53,6 +54,13 @@ def _poses(positions: np.ndarray) -> np.ndarray:
     out = np.tile(np.eye(4), (len(positions), 1, 1))
     out[:, :3, 3] = positions
     return out
+
+
+def _legs(offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Straight legs (identity joint rotations) whose four bones split each foot's offset from the pelvis (N, 2, 3)
+    evenly: the legs' rotations (N, 2, 3, 3, 3) and bones (N, 2, 4, 3)."""
+    legs = np.tile(np.eye(3), offsets.shape[:2] + (3, 1, 1))
+    return legs, np.repeat(offsets[:, :, None, :] / 4.0, 4, axis=2)
 
 
 def _errors(feet: np.ndarray, stance: np.ndarray) -> tuple[float, float]:
@@ -107,7 +115,7 @@ def test_optimisation_puts_the_feet_on_the_ground_and_stops_them_sliding(walk):
     offsets = feet - pelvis[:, None]
     start = fused[:, None] + offsets
     config = replace(SceneOptimisationConfig(), window=50)  # two windows: the second continues the first
-    result = optimise_sequence(t, _poses(fused), start, suit, feet, lambda k: ground, config, sole_m=SOLE_M)
+    result = optimise_sequence(t, _poses(fused), *_legs(offsets), suit, feet, lambda k: ground, config, sole_m=SOLE_M)
     before, after = _errors(start, stance), _errors(result.feet, stance)
     assert before[0] > 0.025 and before[1] > 0.015  # 3 cm high, 1.5 cm of jitter
     # not all of it: the prior (weight 1) holds the pelvis where the landmarks put it against contact (weight 1)
@@ -124,11 +132,11 @@ def test_optimisation_puts_the_feet_on_the_ground_and_stops_them_sliding(walk):
 def test_each_term_does_its_part(walk):
     """The ablation on the synthetic walk: without contact the feet stay high; without sliding they slide more."""
     t, pelvis, feet, stance, fused, suit, ground = walk
-    start = fused[:, None] + (feet - pelvis[:, None])
+    legs_bones = _legs(feet - pelvis[:, None])
     full = SceneOptimisationConfig()
 
     def errors(config: SceneOptimisationConfig) -> tuple[float, float]:
-        return _errors(optimise_sequence(t, _poses(fused), start, suit, feet, lambda k: ground, config,
+        return _errors(optimise_sequence(t, _poses(fused), *legs_bones, suit, feet, lambda k: ground, config,
                                          sole_m=SOLE_M).feet, stance)
 
     both = errors(full)
@@ -136,10 +144,43 @@ def test_each_term_does_its_part(walk):
     assert errors(without(full, "sliding"))[1] > 1.2 * both[1]
 
 
+def test_the_legs_bend_to_stop_a_standing_foot_the_suit_moves(walk):
+    """The pelvis is where it truly is, but the suit's hips swing each leg 3 deg back and forth (a knee and ankle
+    sensor error would do the same): the standing feet slide. Turning the legs' joints back holds them (the pose
+    prior keeps the rest); with the legs kept as the suit has them (a very high pose weight) they slide on."""
+    t, pelvis, feet, stance, _, suit, ground = walk
+    legs, bones = _legs(feet - pelvis[:, None])
+    wobble = np.radians(3.0) * np.sin(2.0 * np.pi * 1.7 * t)  # about y: the foot moves along the walk
+    legs[:, :, 0] = _about_y(wobble)[:, None]
+    moved = pelvis[:, None] + feet_offsets(np.tile(np.eye(3), (len(t), 1, 1)), legs, bones)
+    config = replace(SceneOptimisationConfig(), window=50)
+    bent = optimise_sequence(t, _poses(pelvis), legs, bones, suit, feet, lambda k: ground, config, sole_m=SOLE_M)
+    stiff = optimise_sequence(t, _poses(pelvis), legs, bones, suit, feet, lambda k: ground,
+                              replace(config, pose=1e6), sole_m=SOLE_M)
+    slide = {name: _errors(f, stance)[1] for name, f in (("suit", moved), ("bent", bent.feet), ("stiff", stiff.feet))}
+    assert slide["suit"] > 0.02
+    assert slide["bent"] < 0.75 * slide["stiff"]
+    # the legs took the suit's error, not the pelvis: it stays nearer the truth, the feet nearer their true offsets
+    off = {name: np.linalg.norm(r.pelvis[:, :3, 3] - pelvis, axis=1).mean() for name, r in (("bent", bent),
+                                                                                              ("stiff", stiff))}
+    assert off["bent"] < 0.6 * off["stiff"]
+    true = feet - pelvis[:, None]
+    assert (np.linalg.norm(bent.feet - bent.pelvis[:, None, :3, 3] - true, axis=-1).mean()
+            < 0.75 * np.linalg.norm(moved - pelvis[:, None] - true, axis=-1).mean())
+    assert np.allclose(np.linalg.det(bent.legs), 1.0)
+
+
+def _about_y(angle: np.ndarray) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.tile(np.eye(3), (len(angle), 1, 1))
+    out[:, 0, 0], out[:, 0, 2], out[:, 2, 0], out[:, 2, 2] = c, s, -s, c
+    return out
+
+
 def test_sole_height_needs_a_plane_in_the_first_window(walk):
     t, pelvis, feet, stance, fused, suit, _ = walk
     with pytest.raises(ValueError, match="sole height"):
-        optimise_sequence(t, _poses(fused), feet, suit, feet, lambda k: np.zeros((0, 3)))
+        optimise_sequence(t, _poses(fused), *_legs(feet - pelvis[:, None]), suit, feet, lambda k: np.zeros((0, 3)))
 
 
 def test_config_checks():
@@ -154,25 +195,25 @@ def test_config_checks():
 
 def test_the_live_optimiser_takes_frames_one_window_at_a_time(walk):
     t, pelvis, feet, stance, fused, suit, ground = walk
-    start = fused[:, None] + (feet - pelvis[:, None])
     config = replace(SceneOptimisationConfig(), window=50, max_wait_s=0.0)  # frames wait two windows
+    legs, bones = legs_bones = _legs(feet - pelvis[:, None])
     optimiser = SceneOptimiser(config, sole_m=SOLE_M)
     with pytest.raises(ValueError, match="no frames"):
         optimiser.optimise(ground)
     out = []
     for k in range(len(t)):
-        optimiser.add(t[k], _poses(fused)[k], start[k], suit[k], feet[k])
+        optimiser.add(t[k], _poses(fused)[k], legs[k], bones[k], suit[k], feet[k])
         if optimiser.full:
             out.append(optimiser.optimise(ground)[0].feet)
     assert len(optimiser) == 0 and len(out) == 2
-    whole = optimise_sequence(t, _poses(fused), start, suit, feet, lambda k: ground, config, sole_m=SOLE_M)
+    whole = optimise_sequence(t, _poses(fused), *legs_bones, suit, feet, lambda k: ground, config, sole_m=SOLE_M)
     assert np.allclose(np.concatenate(out), whole.feet)  # the batch tool runs the same code
     # without a sole height and no ground in the map yet, the window waits for a later map, up to two windows
     waiting = SceneOptimiser(config)
     for k in range(waiting.capacity):
-        waiting.add(t[k], _poses(fused)[k], start[k], suit[k], feet[k])
+        waiting.add(t[k], _poses(fused)[k], legs[k], bones[k], suit[k], feet[k])
     with pytest.raises(RuntimeError, match="optimise or drop"):
-        waiting.add(t[0], _poses(fused)[0], start[0], suit[0], feet[0])
+        waiting.add(t[0], _poses(fused)[0], legs[0], bones[0], suit[0], feet[0])
     with pytest.raises(ValueError, match="no sole height"):
         waiting.optimise(np.zeros((0, 3)))
     assert len(waiting) == 100 and waiting.optimise(ground)[0].t.shape == (50, 3) and len(waiting) == 50
@@ -184,13 +225,14 @@ def test_frames_wait_for_the_ground_a_window_or_max_wait_s_whichever_is_longer(w
     and 60 at 20 Hz; never more than four windows (at 40 Hz: 80, not 120)."""
     t, pelvis, feet, stance, fused, suit, ground = walk
     config = replace(SceneOptimisationConfig(), window=20, max_wait_s=3.0)
+    legs, bones = _legs(feet - pelvis[:, None])
     for rate_hz, capacity in ((10.0, 40), (20.0, 60), (40.0, 80)):
         waiting = SceneOptimiser(config)
         for k in range(capacity):
-            waiting.add(k / rate_hz, _poses(fused)[k], feet[k], suit[k], feet[k])
+            waiting.add(k / rate_hz, _poses(fused)[k], legs[k], bones[k], suit[k], feet[k])
         assert waiting.capacity == capacity
         with pytest.raises(RuntimeError, match="optimise or drop"):
-            waiting.add(capacity / rate_hz, _poses(fused)[0], feet[0], suit[0], feet[0])
+            waiting.add(capacity / rate_hz, _poses(fused)[0], legs[0], bones[0], suit[0], feet[0])
 
 
 def test_the_first_window_waits_for_a_map_with_the_ground_under_its_feet(walk):
@@ -199,9 +241,10 @@ def test_the_first_window_waits_for_a_map_with_the_ground_under_its_feet(walk):
     t, pelvis, feet, stance, fused, suit, ground = walk
     start = fused[:, None] + (feet - pelvis[:, None])
     config = replace(SceneOptimisationConfig(), window=30, max_wait_s=0.0)  # frames wait two windows
+    legs_bones = _legs(feet - pelvis[:, None])
 
     def run(ground_from: int):
-        return optimise_sequence(t, _poses(fused), start, suit, feet,
+        return optimise_sequence(t, _poses(fused), *legs_bones, suit, feet,
                                  lambda k: ground if k >= ground_from else ground[:0], config)
 
     late = run(45)  # the first window waits for frame 59, the second window's last, and both are optimised
@@ -214,9 +257,9 @@ def test_the_first_window_waits_for_a_map_with_the_ground_under_its_feet(walk):
 
 def test_a_one_frame_window_at_the_end_gives_a_finite_pose(walk):
     t, pelvis, feet, stance, fused, suit, ground = walk
-    start = fused[:, None] + (feet - pelvis[:, None])
     optimiser = SceneOptimiser(replace(SceneOptimisationConfig(), window=30), sole_m=SOLE_M)
-    optimiser.add(t[0], _poses(fused)[0], start[0], suit[0], feet[0])
+    legs, bones = _legs(feet - pelvis[:, None])
+    optimiser.add(t[0], _poses(fused)[0], legs[0], bones[0], suit[0], feet[0])
     result = optimiser.optimise(ground)[0]
     assert np.isfinite(result.t).all() and np.isfinite(result.R).all()
 

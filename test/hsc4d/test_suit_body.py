@@ -10,7 +10,16 @@ import pytest
 from lip_msgs_py import imu_sample
 from lip_ros.core.rotations import geodesic_angle, matrix_to_quat, rot_x, rot_z
 from lip_ros.core.skeleton import load_skeleton
-from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body, unmeasured_chains
+from lip_ros.hsc4d.suit_body import (
+    FEET,
+    BodyPose,
+    SuitBody,
+    SuitBodyConfig,
+    bent_legs,
+    leg_chains,
+    moved_body,
+    unmeasured_chains,
+)
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 
@@ -116,3 +125,27 @@ def test_a_body_moved_to_another_pelvis_pose_is_the_body_posed_there(capture):
     stacked = BodyPose(*(np.stack([getattr(posed, f)] * 2) for f in ("local_rot", "glob_rot", "joints")))
     both = moved_body(stacked, np.stack([T_from, T_from]), np.stack([T_to, T_from]))
     assert np.allclose(both.joints[0], there.joints) and np.allclose(both.joints[1], posed.joints)
+
+
+def test_legs_taken_out_and_bent_back_give_the_body_and_move_only_the_legs(capture):
+    """leg_chains and bent_legs (the scene optimisation's legs): the feet the optimiser computes from a leg are the
+    skeleton's; the legs put back unchanged give the same body; a turned hip moves that leg's joints only."""
+    from lip_ros.hsc4d.scene_optimisation import feet_offsets
+
+    body = _fed(capture, 1.1)
+    ns = capture.epoch_ns + 8 * 10**9 + int(round(capture.suit.clock_offset_s * 1e9))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = rot_z(0.3) @ rot_x(0.1), [1.0, 2.0, 0.9]
+    pose, _ = body.pose(ns, T)
+    skeleton = body.skeleton
+    legs, bones = leg_chains(skeleton, pose.local_rot)
+    feet = [skeleton.index(f) for f in FEET]
+    assert np.allclose(feet_offsets(T[None, :3, :3], legs[None], bones[None])[0], pose.joints[feet] - T[:3, 3])
+    same = bent_legs(pose, skeleton, legs)
+    for a, b in ((same.local_rot, pose.local_rot), (same.glob_rot, pose.glob_rot), (same.joints, pose.joints)):
+        assert np.allclose(a, b, atol=1e-12)
+    turned = legs.copy()
+    turned[0, 0] = rot_x(0.2) @ turned[0, 0]  # the left hip
+    bent = bent_legs(pose, skeleton, turned)
+    moved = np.flatnonzero(np.linalg.norm(bent.joints - pose.joints, axis=-1) > 1e-9)
+    assert {skeleton.names[j] for j in moved} == {"left_knee", "left_ankle", "left_foot"}

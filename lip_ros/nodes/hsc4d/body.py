@@ -70,7 +70,7 @@ from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_runtime import set_threads
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
-from lip_ros.hsc4d.suit_body import BodyPose, SuitBody, SuitBodyConfig, moved_body
+from lip_ros.hsc4d.suit_body import FEET, BodyPose, SuitBody, SuitBodyConfig, bent_legs, leg_chains, moved_body
 from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.nodes.base import (
     LATCHED,
@@ -91,7 +91,6 @@ from lip_ros.outputs import pose_messages
 
 __all__ = ["BodyNode", "main"]
 
-_FEET = ("left_foot", "right_foot")
 _POSE_TYPES = (("joint_states", "sensor_msgs/msg/JointState"), ("root_pose", "geometry_msgs/msg/PoseStamped"),
                ("joint_poses", "geometry_msgs/msg/PoseArray"))
 
@@ -165,7 +164,7 @@ class BodyNode(GraphNode):
             set_threads(p["optimise_threads"])
             self._optimiser = SceneOptimiser(replace(SceneOptimisationConfig(), window=p["optimise_window"]))
             self._window: list[tuple[int, str, BodyPose, np.ndarray]] = []  # the frames in the optimiser
-            self._feet = [self.body.skeleton.index(f) for f in _FEET]
+            self._feet = [self.body.skeleton.index(f) for f in FEET]
             self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
             self._suit_poses: deque[np.ndarray] = deque(maxlen=self.body.config.capacity)
             self._map: np.ndarray | None = None
@@ -245,7 +244,8 @@ class BodyNode(GraphNode):
         if len(optimiser) >= optimiser.capacity:  # the oldest window waited in vain as long as it may
             self._skip(optimiser.config.window, "no map yet" if self._map is None else "no ground under the feet of "
                        "the first window (no sole height)")
-        optimiser.add(line_ns * 1e-9, T_map_P, pose.joints[self._feet], T_suit[:3, 3], suit.joints[self._feet])
+        optimiser.add(line_ns * 1e-9, T_map_P, *leg_chains(self.body.skeleton, pose.local_rot), T_suit[:3, 3],
+                      suit.joints[self._feet])
         self._window.append((stamp_ns, frame_id, pose, T_map_P))
         if optimiser.full:
             self._optimise()
@@ -273,7 +273,7 @@ class BodyNode(GraphNode):
             finally:
                 self._held_for(time.monotonic() - start)
             self._window_latency.add(time.monotonic() - start)
-            self._publish_optimised(result.t, result.R)
+            self._publish_optimised(result.t, result.R, result.legs)
 
     def _held_for(self, seconds: float) -> None:
         """This callback held the node for ``seconds``: the suit's samples could not come in meanwhile, so the poses
@@ -283,13 +283,13 @@ class BodyNode(GraphNode):
             fused.deadline += seconds
         self._arrived = {segment: at + seconds for segment, at in self._arrived.items()}
 
-    def _publish_optimised(self, t: np.ndarray, R: np.ndarray) -> None:
-        """The optimised pelvis (N, 3), (N, 3, 3) of the oldest N frames waiting: the body turned about its pelvis
-        with it."""
+    def _publish_optimised(self, t: np.ndarray, R: np.ndarray, legs: np.ndarray) -> None:
+        """The optimised pelvis (N, 3), (N, 3, 3) and legs (N, 2, 3, 3, 3) of the oldest N frames waiting: the body
+        turned about its pelvis with it, on those legs."""
         for k, (stamp_ns, frame_id, pose, T) in enumerate(self._window[: len(t)]):
             T_opt = np.eye(4)
             T_opt[:3, :3], T_opt[:3, 3] = R[k], t[k]
-            moved = moved_body(pose, T, T_opt)
+            moved = bent_legs(moved_body(pose, T, T_opt), self.body.skeleton, legs[k])
             self._opt_odometry.publish(odometry_to_msg(self.backend, stamp_ns, frame_id, PELVIS_FRAME, t[k],
                                                        matrix_to_quat(R[k])))
             for topic, (_, msg) in pose_messages(self.backend, OPTIMISED_TOPICS, self.body.skeleton, stamp_ns,
