@@ -236,19 +236,27 @@ def trajectory_metrics(run: TrajectoryRun, fit_s: float = 5.0, level_m: float = 
     """Per method (:data:`METHODS`, :data:`ABLATIONS`): ``ate_m`` (pelvis RMSE after the yaw + translation
     alignment fitted on the ``fit_s`` s after the landing), ``vertical_m`` (RMS height error where the true
     ground is more than ``level_m`` off the start's level: stairs, ramps, the terrace), ``final_m`` (error at the
-    end), and the alignment's own residual ``fit_m`` (RMSE over the fitted seconds)."""
+    end), the alignment's own residual ``fit_m`` (RMSE over the fitted seconds) and, as a diagnostic beside the
+    ATE, ``shape_m``: the RMSE after a yaw + translation alignment fitted on the whole capture after the landing
+    (drift forgiven: the trajectory's shape alone). The fitted seconds are a few metres of a straight walk, so a
+    centimetre across them turns the whole trajectory by a few tenths of a degree: ``shape_m`` shows how much of
+    a difference in ATE is that."""
     fit = _fit_window(run, fit_s)
+    after = run.t_s >= run.landing_s
     off_level = np.abs(run.ground - run.ground[0]) > level_m
     out = {}
     for name in run.positions:
         p = aligned(run, name, fit_s)
         err = np.linalg.norm(p - run.truth, axis=1)
         dz = p[:, 2] - run.truth[:, 2]
+        T = align_yaw_translation(run.positions[name], run.truth, after)
+        shape = np.linalg.norm(run.positions[name] @ T[:3, :3].T + T[:3, 3] - run.truth, axis=1)[after]
         out[name] = {
             "ate_m": float(np.sqrt(np.mean(err**2))),
             "vertical_m": float(np.sqrt(np.mean(dz[off_level] ** 2))) if off_level.any() else float("nan"),
             "final_m": float(err[-1]),
             "fit_m": float(np.sqrt(np.mean(err[fit] ** 2))),
+            "shape_m": float(np.sqrt(np.mean(shape**2))),
         }
     return out
 

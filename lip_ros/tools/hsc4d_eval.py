@@ -52,7 +52,8 @@ _MAP_LABELS = {"live": "site map, live (S_live)", "refined": "site map, refined 
 #: printed per method: (metric key, label, scale, unit)
 _COLUMNS = (("ate_m", "ATE", 100.0, "cm"), ("vertical_m", "vertical", 100.0, "cm"), ("final_m", "end", 100.0, "cm"),
             ("checkpoint_m", "checkpoint", 100.0, "cm"), ("contact_m", "contact", 100.0, "cm"),
-            ("sliding_m", "sliding", 100.0, "cm/frame"), ("mpjpe_mm", "MPJPE", 1.0, "mm"))
+            ("sliding_m", "sliding", 100.0, "cm/frame"), ("mpjpe_mm", "MPJPE", 1.0, "mm"),
+            ("shape_m", "shape", 100.0, "cm"))
 
 
 def _line(name: str, m: dict[str, float]) -> str:

@@ -225,3 +225,21 @@ def test_the_suit_covers_a_sweep_only_without_gaps_in_its_pelvis_samples():
                                                   accel=(0.0, 0.0, 9.81))) is None
     assert pipeline.suit_covers(*sweep)
     assert not pipeline.suit_covers(1100 * ms, 1300 * ms)  # past the newest samples
+
+
+def test_the_shape_error_forgives_what_the_five_seconds_fit_turned():
+    """A trajectory of the right shape, turned 0.5 deg about a point of the fitted seconds plus 1 cm of noise in
+    them only: the ATE (fit on those seconds) grows along a 60 m walk, the shape error (fit on the whole) does
+    not."""
+    from types import SimpleNamespace
+
+    t = np.arange(0.0, 60.0, 0.1)
+    truth = np.column_stack([np.where(t < 30, t, 30.0), np.where(t < 30, 0.0, t - 30.0), np.full_like(t, 0.9)])
+    yaw = np.radians(0.5)
+    turn = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    estimate = (truth - truth[20]) @ turn.T + truth[20]
+    estimate[:50, 1] += np.random.default_rng(0).normal(0.0, 0.01, 50)  # the fitted seconds
+    run = SimpleNamespace(t_s=t, landing_s=0.0, truth=truth, ground=np.zeros_like(t),
+                          positions={"turned": estimate})
+    m = trajectory_metrics(run)["turned"]
+    assert m["ate_m"] > 0.04 and m["shape_m"] < 0.01
