@@ -3,9 +3,9 @@
 Each capture (``--seeds``, ``--seconds``) is simulated and played through a
 :class:`~lip_ros.hsc4d.refinement.CaptureRefiner` once; the refinement is then
 repeated for every combination of the contact weight, the stance speed, the
-orientation weight, an offset on the sole height measured and the sliding
-weight (``--contact``, ``--stance``, ``--orientation``, ``--sole-offset``,
-``--sliding``), and the refined trajectory and body are measured against the
+orientation weight, an offset on the sole height measured, the sliding
+weight and the legs' pose weight (``--contact``, ``--stance``, ``--orientation``,
+``--sole-offset``, ``--sliding``, ``--pose``), and the refined trajectory and body are measured against the
 truth as ``hsc4d_eval`` does. Per setting also where the sliding comes from:
 the motion of a truly standing foot from frame to frame where the suit finds
 it standing too (the sliding term holds it there) and where it does not (the
@@ -15,7 +15,7 @@ Use development seeds only (the held-out ones, 1000 and up, judge the choice).
 
 Run:
   python benchmarks/hsc4d_scene_grid.py --seeds 0 3 11 [--seconds 90] [--contact 0 1 3] [--stance 0.5 0.7 1.0]
-      [--orientation 1 0.5] [--sole-offset 0 0.015] [--sliding 3]
+      [--orientation 1 0.5] [--sole-offset 0 0.015] [--sliding 3] [--pose 0.3]
 """
 
 from __future__ import annotations
@@ -41,14 +41,14 @@ def _figures(m: dict[str, float]) -> str:
     where = "; ".join(f"where the suit {'finds the stance' if name == 'suit_stands' else 'does not'}: "
                       f"{100 * m[f'sliding_{name}_m']:.2f} (truth {100 * m[f'truth_{name}_m']:.2f}, "
                       f"{100 * m[f'share_{name}']:.0f} % of the sliding)" for name in ("suit_stands", "suit_not"))
-    return (" ".join(f"{k.removesuffix('_m')} {100 * m[k]:.2f}" for k in _KEYS) + f" mpjpe {m['mpjpe_mm']:.1f}"
+    return (" ".join(f"{k.removesuffix('_m')} {100 * m[k]:.2f}" for k in _KEYS) + f" mpjpe {m['mpjpe_mm']:.2f}"
             + f"; sliding {where}")
 
 
 def _setting(setting: tuple[float, ...]) -> str:
-    contact, stance, orientation, offset, sliding = setting
+    contact, stance, orientation, offset, sliding, pose = setting
     return (f"contact {contact:g} stance {stance:g} orientation {orientation:g} sole {offset:+.3f} "
-            f"sliding {sliding:g}")
+            f"sliding {sliding:g} pose {pose:g}")
 
 
 def main() -> None:
@@ -61,9 +61,10 @@ def main() -> None:
     p.add_argument("--orientation", type=float, nargs="+", default=[1.0, 0.5])
     p.add_argument("--sole-offset", type=float, nargs="+", default=[0.0, 0.015])
     p.add_argument("--sliding", type=float, nargs="+", default=[SceneOptimisationConfig.sliding])
+    p.add_argument("--pose", type=float, nargs="+", default=[SceneOptimisationConfig.pose])
     args = p.parse_args()
     settings = [s for s in itertools.product(args.contact, args.stance, args.orientation, args.sole_offset,
-                                             args.sliding)
+                                             args.sliding, args.pose)
                 if s[0] or not s[3]]  # a sole offset matters only with contact
     feet = [load_skeleton().index(f) for f in FEET]
     results: dict[tuple, list[dict[str, float]]] = {s: [] for s in settings}
@@ -84,9 +85,9 @@ def main() -> None:
         both = standing[1:] & standing[:-1]  # the frame pairs the sliding metric measures
         true_steps = np.linalg.norm(np.diff(truth.joints[:, feet], axis=0), axis=-1)
         for setting in settings:
-            contact, stance, orientation, offset, sliding = setting
+            contact, stance, orientation, offset, sliding, pose = setting
             config = replace(SceneOptimisationConfig(), contact=contact, stance_speed_mps=stance,
-                             orientation=orientation, sliding=sliding)
+                             orientation=orientation, sliding=sliding, pose=pose)
             r = refiner.refine(config, sole + offset)
             run = SimpleNamespace(  # what the metrics read of a TrajectoryRun
                 seed=seed, t_s=t_s, positions={"refined": r.pelvis[:, :3, 3]}, joints={"refined": r.body.joints},
