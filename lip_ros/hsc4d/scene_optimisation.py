@@ -318,7 +318,7 @@ class SceneOptimiser:
         self.config = config or SceneOptimisationConfig()
         self.sole_m = sole_m
         self._rng = np.random.default_rng(seed)
-        self._frames: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._frames: list[tuple[np.ndarray, ...]] = []  # (t_s, pelvis, legs, bones, suit_pelvis, suit_feet)
         self._before: tuple[np.ndarray, np.ndarray] | None = None
         self._last_suit: np.ndarray | None = None  # the suit's pelvis at the window before's last frame
 
