@@ -73,20 +73,24 @@ def moved_body(pose: BodyPose, T_from: np.ndarray, T_to: np.ndarray) -> BodyPose
     return BodyPose(local, turn[..., None, :, :] @ pose.glob_rot, joints)
 
 
+def _leg_joints(skeleton: Skeleton) -> np.ndarray:
+    """(2, 4) the indices of :data:`LEGS` in ``skeleton``."""
+    return np.array([[skeleton.index(name) for name in leg] for leg in LEGS])
+
+
 def leg_chains(skeleton: Skeleton, local_rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each leg (:data:`LEGS`) of a body: the hip's, knee's and ankle's local rotations (..., 2, 3, 3, 3) of
     ``local_rot`` (..., 24, 3, 3), and the skeleton's bones down the leg (2, 4, 3): the hip from the pelvis, the
     knee from the hip, the ankle from the knee, the foot joint from the ankle (rest offsets, parent's frame)."""
-    joints = np.array([[skeleton.index(name) for name in leg] for leg in LEGS])
+    joints = _leg_joints(skeleton)
     return np.asarray(local_rot)[..., joints[:, :3], :, :], skeleton.offsets[joints].copy()
 
 
 def bent_legs(pose: BodyPose, skeleton: Skeleton, legs: np.ndarray) -> BodyPose:
     """``pose`` (any leading dimensions) with the hips', knees' and ankles' local rotations replaced by ``legs``
     (..., 2, 3, 3, 3; :func:`leg_chains`), the rest of the body and the pelvis kept."""
-    joints = np.array([[skeleton.index(name) for name in leg[:3]] for leg in LEGS])
     local = pose.local_rot.copy()
-    local[..., joints, :, :] = legs
+    local[..., _leg_joints(skeleton)[:, :3], :, :] = legs
     glob, positions = forward_kinematics(skeleton, local, pose.joints[..., 0, :])
     return BodyPose(local, glob, positions)
 
