@@ -21,3 +21,19 @@ def test_a_lost_capture_is_reported_and_the_exit_status_says_so(tmp_path, capsys
     assert "seed 0: LOST: capture 0: no trajectory (waiting for the jump" in out and "every capture lost" in out
     report = json.loads((tmp_path / "metrics.json").read_text())
     assert list(report) == ["0"] and report["0"]["lost"].startswith("capture 0:")
+
+
+def test_the_refinement_is_held_to_both_live_outputs_on_every_metric_but_the_shape():
+    """``refined_shortfalls`` names each metric of the issue where the refinement is worse than the live graph or
+    the live optimised body, by how much (unrounded), and leaves out the shape (a diagnostic) and ties."""
+    keys = ("ate_m", "vertical_m", "final_m", "checkpoint_m", "contact_m", "sliding_m", "mpjpe_mm", "shape_m")
+    live = dict.fromkeys(keys, 0.02)
+    refined = live | {"ate_m": 0.01, "vertical_m": 0.0214, "shape_m": 0.05}
+    optimised = live | {"mpjpe_mm": 0.0199}
+    short = hsc4d_eval.refined_shortfalls({"live": live, "live_optimised": optimised, "refined": refined})
+    assert [(key, name) for key, name, _ in short] == [("vertical_m", "live"), ("vertical_m", "live_optimised"),
+                                                      ("mpjpe_mm", "live_optimised")]
+    assert abs(short[0][2] - 0.0014) < 1e-12 and abs(short[2][2] - 0.0001) < 1e-12
+    line = hsc4d_eval._shortfalls_line({"live": live, "live_optimised": optimised, "refined": refined})
+    assert "vertical by 0.14 cm (live graph)" in line and "MPJPE by 0.00 mm (live optimised)" in line
+    assert "every metric" in hsc4d_eval._shortfalls_line({"live": live, "live_optimised": live, "refined": live})
