@@ -65,7 +65,8 @@ _LIVE = ("live", "live_optimised")  # the live outputs the refinement is held to
 
 def refined_shortfalls(metrics: dict[str, dict[str, float]]) -> list[tuple[str, str, float]]:
     """Where the offline refinement is worse than a live output in ``metrics`` (method -> metric -> value, as
-    the report's): (metric key, live method, by how much, in the metric's own unit), unrounded."""
+    the report's): (metric key, live method, by how much, in the metric's own unit), unrounded. A metric a capture
+    does not give (NaN: no stairs or ramps for the vertical error) is not counted."""
     return [(key, live, metrics["refined"][key] - metrics[live][key])
             for key in _TARGET_KEYS for live in _LIVE if metrics["refined"][key] > metrics[live][key]]
 
