@@ -74,10 +74,10 @@ def refined_shortfalls(metrics: dict[str, dict[str, float]]) -> list[tuple[str, 
 def _shortfalls_line(metrics: dict[str, dict[str, float]]) -> str:
     short = refined_shortfalls(metrics)
     if not short:
-        return "  the offline refinement is as good as or better than both live outputs on every metric"
+        return "  the offline refinement is as good as or better than both live outputs on every metric measured"
     columns = {key: (label, scale, unit) for key, label, scale, unit in _COLUMNS}
     return "  the offline refinement is worse than live on: " + ", ".join(
-        f"{columns[key][0]} by {columns[key][1] * by:.2f} {columns[key][2]} ({_LABELS[live]})"
+        f"{columns[key][0]} by {columns[key][1] * by:.2g} {columns[key][2]} ({_LABELS[live]})"
         for key, live, by in short)
 
 
