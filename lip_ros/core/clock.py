@@ -8,7 +8,10 @@ time, such as a calibration) and starts the stream again from that stamp. The
 HSC4D branch, whose state is built along time (a trajectory, a pose graph, the
 suit's buffers), keeps one time line instead: :class:`SteppingClock` moves the
 stamps after a step on by its size, so that the time line goes on where it
-was, and takes times on it back to the clock's reading for the outputs.
+was, and takes times on it back to the clock's reading for the outputs. When
+the data show that a new capture began instead (a bag played again:
+:mod:`lip_ros.hsc4d.suit_restart`), :meth:`SteppingClock.begin_again` starts a
+new time line and refuses what the last capture still sends.
 """
 
 from __future__ import annotations
@@ -19,6 +22,11 @@ __all__ = ["CLOCK_STEP_NS", "stepped_back", "SteppingClock"]
 
 #: a stamp this far behind its stream's newest is a clock that stepped back, not a message out of order
 CLOCK_STEP_NS = 500_000_000
+#: a stream that crossed its clock's latest step back this recently (on its time line) when a new capture begins
+#: is already in the new capture (the suit's streams cross a bag's loop within a few samples, a LiDAR within a sweep)
+_CROSSED_RECENTLY_NS = 2 * CLOCK_STEP_NS
+_FAR_BEHIND = "far behind the last message (a clock step if the next one is too)"
+_LAST_CAPTURE = "of the capture before a new one began"
 
 
 def stepped_back(stamp_ns: int, newest_ns: int | None, tolerance_ns: int = CLOCK_STEP_NS) -> int:
@@ -43,17 +51,46 @@ class SteppingClock:
 
     def __init__(self) -> None:
         self.steps_ns: list[int] = []  #: the steps back seen (their sizes, ns), oldest first
+        self.refused = ""  #: why :meth:`internal` last refused a stamp
         self._starts: list[int] = []  # the internal time each step took effect at
         self._shifts: list[int] = [0]  # what the stamps are moved on by after 0, 1, ... steps
         # stream -> newest stamp, spacing, steps crossed, the stamp far behind it not confirmed yet (or None)
         self._streams: dict[str, tuple[int, int, int, int | None]] = {}
+        self._last_capture: dict[str, int] = {}  # stream -> its newest stamp of the capture before (begin_again)
+        self._ahead_ns: int | None = None  # ... and how far after it a stamp is the new capture's
+
+    def begin_again(self, ahead_ns: int | None = None) -> None:
+        """A new capture on this clock: a new time line, from each stream's next stamp. A stream that crossed the
+        clock's latest step back within the last second of its time line is in the new capture already; what
+        the others send is the last capture's, refused by :meth:`internal`, until a stamp falls far behind their
+        newest (their clock stepped back with the new capture), or (with ``ahead_ns``) comes more than
+        ``ahead_ns`` after it (a clock that may not have stepped: what the last capture may still send comes
+        sooner), or :meth:`end_last_capture`."""
+        latest = self._starts[-1] if self._starts else None
+        self._ahead_ns = ahead_ns
+        self._last_capture = {
+            stream: newest for stream, (newest, _, crossed, _) in self._streams.items()
+            if latest is None or crossed < len(self.steps_ns)
+            or newest + self._shifts[crossed] - latest > _CROSSED_RECENTLY_NS}
+        self.steps_ns, self._starts, self._shifts, self._streams = [], [], [0], {}
+
+    def end_last_capture(self) -> None:
+        """Whatever comes from now on is the new capture's (the caller knows it otherwise: :meth:`begin_again`)."""
+        self._last_capture = {}
 
     def internal(self, stream: str, stamp_ns: int, confirm: bool = True) -> int | None:
         """The time of ``stream``'s stamp on the time line; None for a stamp far behind the stream's newest that
         the stream has not confirmed as a step yet (refuse that message). Without ``confirm`` the first stamp far
         behind is the step (a stream that never sends a stale message: a LiDAR's sweeps, another node's output);
         no message is refused then, which keeps the spacing of what the stream sends after the step right for
-        those downstream that measure the step again."""
+        those downstream that measure the step again. After :meth:`begin_again`, also None for what the stream
+        still sends of the last capture. :attr:`refused` says why."""
+        last = self._last_capture.get(stream)
+        if last is not None:
+            if not stepped_back(stamp_ns, last) and (self._ahead_ns is None or stamp_ns - last <= self._ahead_ns):
+                self.refused = _LAST_CAPTURE
+                return None
+            del self._last_capture[stream]
         newest, spacing, crossed, stale = self._streams.get(stream, (None, 0, 0, None))
         if newest is None:
             self._streams[stream] = (stamp_ns, 0, 0, None)
@@ -65,6 +102,7 @@ class SteppingClock:
             return stamp_ns + self._shifts[crossed]
         if stale is None and confirm:  # the first stamp that far back: a stale message, or a step the next one confirms
             self._streams[stream] = (newest, spacing, crossed, stamp_ns)
+            self.refused = _FAR_BEHIND
             return None
         if crossed == len(self.steps_ns):  # the first of the clock's streams past this step
             first = stamp_ns if stale is None else min(stale, stamp_ns)  # the first stamp after the step

@@ -348,11 +348,12 @@ class GraphNode(Node):
 
     def on_time_line(self, clock: SteppingClock, stream: str, stamp_ns: int, confirm: bool = True) -> int:
         """``stream``'s stamp on ``clock``'s time line across its steps back (:meth:`SteppingClock.internal`); a
-        step is logged; MalformedMessageError for a stamp far behind that is not confirmed as a step yet."""
+        step is logged; MalformedMessageError for a stamp the clock refuses (far behind and not confirmed as a step
+        yet; of the capture before a new one began)."""
         steps = len(clock.steps_ns)
         line_ns = clock.internal(stream, stamp_ns, confirm)
         if line_ns is None:
-            raise MalformedMessageError("far behind the last message (a clock step if the next one is too)")
+            raise MalformedMessageError(clock.refused)
         if len(clock.steps_ns) > steps:
             self.get_logger().warning(f"{stream}: its clock stepped back {clock.steps_ns[-1] * 1e-9:.3f} s: going "
                                       "on, its stamps moved on by the step")

@@ -53,6 +53,9 @@ FAULT_KINDS = {
     "empty_clouds": "LiDAR frames of 0 x 0 points",
     "clock_back": "from the window's start every sensor's stamps jump 5 s back (a PTP step; receive times go on)",
     "clock_forward": "from the window's start every sensor's stamps jump 5 s forward",
+    "played_again": "at the window's start the capture starts again from its beginning, with its own stamps and "
+                    "the truth's (a bag played in a loop, a replay restarted), and plays for the window's length; "
+                    "the bag ends with it",
 }
 
 _IMU = "sensor_msgs/msg/Imu"
@@ -217,6 +220,24 @@ class _Rewriter:
         return out
 
 
+def _played(src: Path, faults: Sequence[FaultSpec], t0: int) -> Iterator[RawMessage]:
+    """The input's messages in log order, with the capture started again at a ``played_again`` fault's start (its
+    receive times go on from there; the earliest such fault; the input as it is without one)."""
+    again = min((f for f in faults if f.kind == "played_again"), key=lambda f: f.start_s, default=None)
+    if again is None:
+        yield from read_raw(src)
+        return
+    start_ns, length_ns = round(again.start_s * 1e9), round(again.duration_s * 1e9)
+    for m in read_raw(src):
+        if m.log_ns - t0 >= start_ns:
+            break
+        yield m
+    for m in read_raw(src):
+        if m.log_ns - t0 >= length_ns:
+            break
+        yield RawMessage(m.topic, m.log_ns + start_ns, m.data, m.msgtype)
+
+
 def _in_log_order(messages: Iterator[RawMessage], rewriter: _Rewriter) -> Iterator[RawMessage]:
     """The rewritten messages sorted by their (possibly delayed) receive time."""
     heap: list[tuple[int, int, RawMessage]] = []
@@ -245,7 +266,7 @@ def write_faulty_bag(src: str | Path, dst: str | Path, faults: Sequence[FaultSpe
     rewriter = _Rewriter(src, faults, seed)
     conns: dict[str, Any] = {}
     with mcap_writer(dst, zstd=True) as writer:
-        for m in _in_log_order(read_raw(src), rewriter):
+        for m in _in_log_order(_played(src, faults, rewriter.t0), rewriter):
             if m.topic not in conns:
                 info = topics[m.topic]
                 conns[m.topic] = writer.add_connection(m.topic, info.msgtype, typestore=rewriter.backend.typestore,

@@ -69,3 +69,42 @@ def test_without_confirmation_the_first_stamp_behind_is_the_step():
         clock.internal("lidar", t, confirm=False)
     assert clock.internal("lidar", 300 * MS - 5 * S, confirm=False) == 300 * MS
     assert clock.steps_ns == [5 * S] and clock.external(300 * MS) == 300 * MS - 5 * S
+
+
+def test_a_new_capture_starts_a_new_time_line_and_refuses_what_the_last_one_still_sends():
+    """A bag played again at 14 s: the suit's odometry crosses the step (and shows the new capture), its IMU
+    stream still sends two samples of the last capture, and the LiDAR has not stepped yet when the capture begins
+    again; each stream's first stamp of the new capture starts the new time line, on its own stamps."""
+    clock = SteppingClock()
+    for t in range(0, 14 * S, 10 * MS):
+        clock.internal("odometry", t)
+        clock.internal("imu", t + 5 * MS)
+    clock.internal("lidar", 13 * S + 950 * MS, confirm=False)
+    assert clock.internal("odometry", 0) is None and clock.internal("odometry", 10 * MS) is not None  # stepped
+    clock.begin_again()
+    assert clock.steps_ns == []
+    assert clock.internal("odometry", 20 * MS) == 20 * MS  # crossed the step just now: in the new capture
+    assert clock.internal("imu", 14 * S - 5 * MS) is None and clock.internal("imu", 14 * S + 5 * MS) is None
+    assert clock.refused == "of the capture before a new one began"
+    assert clock.internal("imu", 15 * MS) == 15 * MS  # its clock stepped back: the new capture's
+    assert clock.internal("imu", 25 * MS) == 25 * MS
+    assert clock.internal("lidar", 14 * S + 50 * MS, confirm=False) is None  # a sweep of the last capture, late
+    assert clock.internal("lidar", 50 * MS, confirm=False) == 50 * MS
+    # the new capture reaches the stamps the last one ended at: the same stream, the same time line
+    assert clock.internal("imu", 14 * S + 15 * MS) == 14 * S + 15 * MS and clock.steps_ns == []
+
+
+def test_after_a_new_capture_a_stream_whose_clock_did_not_step_goes_on_when_told():
+    clock = SteppingClock()
+    for t in range(0, 2 * S, 100 * MS):
+        clock.internal("lidar", t, confirm=False)
+    clock.begin_again(ahead_ns=500 * MS)  # the suit began again; the LiDAR's clock goes on
+    assert clock.internal("lidar", 2 * S, confirm=False) is None  # its newest was at 1.9 s
+    assert clock.internal("lidar", 2 * S + 400 * MS, confirm=False) is None
+    assert clock.internal("lidar", 2 * S + 500 * MS, confirm=False) == 2 * S + 500 * MS
+    assert clock.internal("lidar", 2 * S + 600 * MS, confirm=False) == 2 * S + 600 * MS
+    # without a time after which it is the new capture's, until the caller says so
+    clock.begin_again()
+    assert clock.internal("lidar", 5 * S, confirm=False) is None
+    clock.end_last_capture()
+    assert clock.internal("lidar", 5 * S, confirm=False) == 5 * S

@@ -112,3 +112,18 @@ def test_clock_steps_move_every_stamp_and_not_the_receive_times(tmp_path) -> Non
                                                                for m in src[LIDAR_TOPIC])
     with pytest.raises(ValueError, match="unknown fault"):
         FaultSpec("gremlins", 0.0, 1.0)
+
+
+def test_a_capture_played_again_starts_over_with_its_own_stamps(tmp_path) -> None:
+    bag = tmp_path / "again"
+    (window,) = write_faulty_bag(DEMO_BAG, bag, [FaultSpec("played_again", 7.0, 5.0)])
+    src, out, t0 = _by_topic(DEMO_BAG), _by_topic(bag), bag_span(DEMO_BAG)[0]
+    for topic in (LIDAR_TOPIC, IMUS[0], "/gt/root_pose"):
+        before = [m for m in src[topic] if m.log_ns - t0 < 7e9]
+        again = [m for m in src[topic] if m.log_ns - t0 < 5e9]
+        assert len(out[topic]) == len(before) + len(again)
+        assert [m.log_ns for m in out[topic]] == [m.log_ns for m in before] + [m.log_ns + 7_000_000_000 for m in again]
+        stamps = [stamp_to_ns(m.msg.header.stamp) for m in out[topic]]
+        assert stamps == [stamp_to_ns(m.msg.header.stamp) for m in before + again]  # the capture's own stamps
+    first = [stamp_to_ns(m.msg.header.stamp) for m in src[LIDAR_TOPIC] if m.log_ns - t0 < 5e9]
+    assert window.kind == "played_again" and window.start_ns <= min(first) and max(first) <= window.end_ns

@@ -38,7 +38,15 @@ window's feet by then or at the end) are counted by reason on
 The LiDAR's and the suit's clocks may step back (a PTP step): the node keeps
 each on its own time line as the trajectory node does
 (:class:`lip_ros.core.clock.SteppingClock`), matches the suit's samples to the
-poses there, and stamps its outputs with the stamps of the fused poses.
+poses there, and stamps its outputs with the stamps of the fused poses. When the
+suit's pelvis jumps across its clock's step back (a bag played again: the rule
+the trajectory node starts again by, :class:`lip_ros.hsc4d.suit_restart.SuitRestart`,
+on the same ``/mocap/odometry``), a new capture began: the poses waiting are
+posed and the last window optimised with what there is, then the node starts
+again (time lines, suit buffers, offset, map, the body's scale and the
+optimiser's sole height), skipping what still comes of the last capture
+(:meth:`lip_ros.core.clock.SteppingClock.begin_again`; its maps until the new
+capture's offset).
 """
 
 from __future__ import annotations
@@ -71,6 +79,7 @@ from lip_ros.core.torch_runtime import set_threads
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
 from lip_ros.hsc4d.suit_body import FEET, BodyPose, SuitBody, SuitBodyConfig, bent_legs, leg_chains, moved_body
+from lip_ros.hsc4d.suit_restart import SuitRestart
 from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.nodes.base import (
     LATCHED,
@@ -86,7 +95,7 @@ from lip_ros.nodes.base import (
     suit_input,
 )
 from lip_ros.nodes.hsc4d import FUSED_ODOMETRY_QOS, HSC4D_PARAMS_FILE
-from lip_ros.nodes.hsc4d.trajectory import TrajectoryNode
+from lip_ros.nodes.hsc4d.trajectory import BEGAN_AGAIN, TrajectoryNode
 from lip_ros.outputs import pose_messages
 
 __all__ = ["BodyNode", "main"]
@@ -132,8 +141,8 @@ class BodyNode(GraphNode):
         "max_waiting_poses": Param("poses that may wait for the suit; the oldest goes on with what there is",
                                    positive),
         "max_imu_gap_s": Param("widest gap between two suit samples interpolated across", positive),
-        "suit_odometry_topic": Param("input: the suit's own nav_msgs/Odometry (which foot stands, for the "
-                                     "optimisation)"),
+        "suit_odometry_topic": Param("input: the suit's own nav_msgs/Odometry (a new capture beginning; which "
+                                     "foot stands, for the optimisation)"),
         "map_topic": Param("input (latched): the map of hsc4d_trajectory_node (the ground under the feet)"),
         "optimise_window": Param("frames per scene-aware optimisation window (0: no optimisation)",
                                  lambda v: None if v == 0 or v >= 3 else f"must be 0 or >= 3, got {v}"),
@@ -145,17 +154,15 @@ class BodyNode(GraphNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NAME, **kwargs)
         p = self.params
-        gap_ns = int(p["max_imu_gap_s"] * 1e9)
         try:
-            capacity = TrajectoryConfig(suit_rate_hz=p["suit_rate_hz"]).suit_capacity
-            self.body = SuitBody(load_skeleton(), SuitBodyConfig(capacity=capacity, body_scale=p["body_scale"] or 1.0,
-                                                                 max_gap_ns=gap_ns, max_hold_ns=gap_ns))
+            self._new_body()
         except ValueError as exc:
             raise ParameterError(str(exc)) from exc
-        self._scale_from_height = p["body_scale"] == 0
         self._offset_ns: int | None = None
         self._waiting: deque[_FusedPose] = deque()
         self._lidar_clock, self._suit_clock = SteppingClock(), SteppingClock()  # time lines across clock steps
+        self._restart = SuitRestart()
+        self._began_again = 0  # new captures begun
         self._degraded = 0
         self._latency = LatencyWindow()  # fused pose received -> body published
         self._out = self._pose_publishers(HSC4D_TOPICS)
@@ -176,8 +183,10 @@ class BodyNode(GraphNode):
             self._opt_odometry = self.create_publisher(Odometry, OPTIMISED_ODOMETRY_TOPIC, RELIABLE)
             self._opt_out = self._pose_publishers(OPTIMISED_TOPICS)
             self.create_subscription(PointCloud2, p["map_topic"], self._on_map, LATCHED, callback_group=self.group)
-            self.add_input("suit odometry", p["suit_odometry_topic"], Odometry, p["suit_rate_hz"],
-                           self._on_suit_odometry, suit_input(p["suit_rate_hz"]), polled=True)
+        # taken before the segments' samples (polled in this order): a new capture is seen before they are put on
+        # the time line of the last one
+        self.add_input("suit odometry", p["suit_odometry_topic"], Odometry, p["suit_rate_hz"],
+                       self._on_suit_odometry, suit_input(p["suit_rate_hz"]), polled=True)
         self.create_subscription(Int64, p["offset_topic"], self._on_offset, LATCHED, callback_group=self.group)
         self.add_input("fused odometry", p["odometry_topic"], Odometry, p["lidar_rate_hz"], self._on_odometry,
                        FUSED_ODOMETRY_QOS)
@@ -192,12 +201,25 @@ class BodyNode(GraphNode):
                            raw=True, polled=True)
         self.create_timer(0.02, self._drain, self.group, clock=self.steady)
 
+    def _new_body(self) -> None:
+        """The suit's body as the parameters set it: empty buffers, at the contract's size (or ``body_scale``)
+        until the first fused pose scales it (``body_scale`` 0)."""
+        p = self.params
+        gap_ns = int(p["max_imu_gap_s"] * 1e9)
+        capacity = TrajectoryConfig(suit_rate_hz=p["suit_rate_hz"]).suit_capacity
+        self.body = SuitBody(load_skeleton(), SuitBodyConfig(capacity=capacity, body_scale=p["body_scale"] or 1.0,
+                                                             max_gap_ns=gap_ns, max_hold_ns=gap_ns))
+        self._scale_from_height = p["body_scale"] == 0
+
     def _pose_publishers(self, topics: Any) -> dict[str, Any]:
         """A reliable publisher per pose output of ``topics`` (a PoseTopics)."""
         return {getattr(topics, name): self.create_publisher(rclpy_message_class(msgtype), getattr(topics, name),
                                                              RELIABLE) for name, msgtype in _POSE_TYPES}
 
     def _on_map(self, msg: PointCloud2) -> None:
+        if self._began_again and self._offset_ns is None:  # the last capture's or the new one's: not known which
+            self._not_optimised["optimisation: maps not used, a new capture began"] += 1
+            return
         try:
             self._map = cloud_to_xyz(msg).astype(np.float64)
         except MalformedMessageError as exc:
@@ -212,6 +234,12 @@ class BodyNode(GraphNode):
         if not (np.isfinite(odometry.position).all() and np.isfinite(norm) and norm > 0.5):
             raise MalformedMessageError("non-finite position or degenerate quaternion")
         line_ns = self.on_time_line(self._suit_clock, "suit odometry", odometry.stamp_ns)
+        began = self._restart.add(odometry.stamp_ns, odometry.position, odometry.quat)
+        if began is not None:
+            self._begin_again(began)
+            line_ns = self.on_time_line(self._suit_clock, "suit odometry", odometry.stamp_ns)
+        if self._optimiser is None:
+            return odometry.stamp_ns
         if self._suit_stamps and line_ns <= self._suit_stamps[-1]:
             raise MalformedMessageError("not after the last sample")
         T = np.eye(4)
@@ -219,6 +247,32 @@ class BodyNode(GraphNode):
         self._suit_stamps.append(line_ns)
         self._suit_poses.append(T)
         return odometry.stamp_ns
+
+    def _begin_again(self, reason: str) -> None:
+        """A new capture began (``reason``): pose the last one's poses received so far (the new capture's come
+        after its jump) with the suit samples received so far, optimise its last window with what there is,
+        then start again."""
+        self.get_logger().warning(f"a new capture began: {reason}; posing again from the new capture's offset")
+        for segment in self.body.segments:  # not take_polled: this is the suit odometry's handler
+            self.take_waiting(f"suit {segment}")
+        self.take_waiting("fused odometry")
+        while self._waiting:
+            self._pose(self._waiting.popleft())
+        if self._optimiser is not None:
+            self._optimise(flush=True)
+            if len(self._optimiser):
+                self._skip(None, "a new capture began")
+            self._optimiser = SceneOptimiser(self._optimiser.config)
+            self._suit_stamps.clear()
+            self._suit_poses.clear()
+            self._map = self._map_failed = None
+        self._new_body()
+        self._offset_ns = None
+        self._lidar_clock.begin_again()
+        self._suit_clock.begin_again()
+        self._raw = {s: [] for s in self.body.segments}
+        self._newest, self._arrived = {}, {}
+        self._began_again += 1
 
     def _suit_pose(self, suit_ns: int) -> np.ndarray | None:
         """The suit's own pelvis pose nearest ``suit_ns`` (within max_imu_gap_s), or None."""
@@ -300,6 +354,7 @@ class BodyNode(GraphNode):
 
     def _on_offset(self, msg: Int64) -> None:
         self._offset_ns = int(msg.data)
+        self._lidar_clock.end_last_capture()  # the trajectory sends the new capture's offset before its poses
         self._drain()
 
     def _on_imu(self, segment: str, data: bytes) -> int:
@@ -338,7 +393,11 @@ class BodyNode(GraphNode):
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
         now = time.monotonic()
         # the trajectory node's output, in order: a step back in it is the LiDAR's clock stepping
-        line_ns = self.on_time_line(self._lidar_clock, "fused odometry", odometry.stamp_ns, confirm=False)
+        try:
+            line_ns = self.on_time_line(self._lidar_clock, "fused odometry", odometry.stamp_ns, confirm=False)
+        except MalformedMessageError as exc:  # of the capture before a new one began
+            self.count_frame(BEGAN_AGAIN, f"{odometry.stamp_ns}: {exc}")
+            raise
         self._waiting.append(_FusedPose(odometry.stamp_ns, line_ns, odometry.frame_id, T, now,
                                         now + self.params["suit_wait_s"]))
         if len(self._waiting) > self.params["max_waiting_poses"]:
@@ -418,6 +477,7 @@ class BodyNode(GraphNode):
             "body scale": f"{self.body.skeleton.scale:.3f}", "poses with held suit data": self._degraded,
             "pending": len(self._waiting), **{f"suit samples rejected: {k}": v for k, v in self._rejected.items()},
             "clock steps back (LiDAR, suit)": f"{len(self._lidar_clock.steps_ns)}, {len(self._suit_clock.steps_ns)}",
+            "new captures begun": self._began_again,
             **self._latency.values("latency_ms"), **self._optimisation_status()}
 
     def _optimisation_status(self) -> dict[str, Any]:

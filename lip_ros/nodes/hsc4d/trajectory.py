@@ -29,7 +29,13 @@ goes on: each clock's stamps are moved on by the step
 refused), the map, the offset and the mounting
 are kept, and the outputs are stamped as the LiDAR's clock now reads. A step
 ahead is a gap in the stamps, which the odometry bridges with the suit's
-motion. A sweep not after the last one otherwise is skipped.
+motion. A sweep not after the last one otherwise is skipped. When the suit's
+pelvis jumps across its clock's step back (a bag played again, the suit's
+driver restarted: :class:`lip_ros.hsc4d.suit_restart.SuitRestart`), a new
+capture began: the sweeps of the last one are registered with what there is,
+those it still held (and any that come late) are skipped and counted, and a
+new trajectory (map, offset and mounting included) waits for the new
+capture's jump; the sweeps of the new capture received so far go to it.
 """
 
 from __future__ import annotations
@@ -57,10 +63,11 @@ from lip_msgs_py import (
     transform_stamped_to_msg,
     xyz_to_cloud,
 )
-from lip_ros.core.clock import SteppingClock
+from lip_ros.core.clock import SteppingClock, stepped_back
 from lip_ros.core.rotations import matrix_to_axis_angle, matrix_to_quat
 from lip_ros.hsc4d.lidar_odometry import OdometryConfig
 from lip_ros.hsc4d.mount import HipMountPrior
+from lip_ros.hsc4d.suit_restart import SuitRestart
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 from lip_ros.nodes.base import (
     IMU_INPUT,
@@ -98,6 +105,9 @@ _CATCH_UP_SHARE = 0.3
 _SUIT_INPUTS = ("suit pelvis imu", "suit odometry")  # the input names of the suit's topics
 _LIDAR = "hip lidar"  # the LiDAR's input name
 _MAX_TRACKED = 1000  # sweeps whose receipt time is kept for the latency
+#: how a sweep the trajectory held when a new capture began is accounted for (the body node's for the poses of the
+#: last capture that reach it after it began again)
+BEGAN_AGAIN = "skipped: a new capture began"
 
 
 @dataclass(frozen=True)
@@ -107,6 +117,7 @@ class _Sweep:
     point_ns: np.ndarray
     received: float  # monotonic s
     end_ns: int  # the time of its last point
+    clock_ns: int  # its stamp as the LiDAR's clock read it (stamp_ns is on the node's time line)
 
 
 def _mount_check(pipe: TrajectoryPipeline) -> str:
@@ -162,10 +173,13 @@ class TrajectoryNode(GraphNode):
         self._suit_ns = {"imu": None, "odometry": None}  # newest accepted suit stamps
         self._dropped: Counter[str] = Counter()  # of the pipeline's drops, those already counted as frames
         self._last_ns: int | None = None  # of the last sweep taken
+        self._last_clock_ns: int | None = None  # ... as the LiDAR's clock read it
         self._last_received = 0.0  # monotonic s of the last cloud
         self._last_step: TrajectoryStep | None = None
         self._map_stamp_ns: int | None = None
         self._lidar_clock, self._suit_clock = SteppingClock(), SteppingClock()  # time lines across clock steps
+        self._restart = SuitRestart()
+        self._began_again: list[str] = []  # why each new capture began
         self._published = 0
         self._latency = LatencyWindow()  # cloud received -> odometry published, sweeps with no backlog before them
         self._catch_up_latency = LatencyWindow()  # ... sweeps after the sync that waited behind the backlog
@@ -201,9 +215,14 @@ class TrajectoryNode(GraphNode):
             return stamp_ns
         # a LiDAR sends no stale sweep: the first one behind is the step (and the outputs' spacing stays whole for
         # the body node, which finds the step again from their stamps)
-        line_ns = self.on_time_line(self._lidar_clock, _LIDAR, stamp_ns, confirm=False)
+        try:
+            line_ns = self.on_time_line(self._lidar_clock, _LIDAR, stamp_ns, confirm=False)
+        except MalformedMessageError as exc:  # of the capture before a new one began
+            self.count_frame(BEGAN_AGAIN, f"{stamp_ns}: {exc}")
+            raise
         point_ns = line_ns + t.astype(np.int64)
-        self._waiting.append(_Sweep(line_ns, points.astype(np.float64), point_ns, received, int(point_ns.max())))
+        self._waiting.append(_Sweep(line_ns, points.astype(np.float64), point_ns, received, int(point_ns.max()),
+                                    stamp_ns))
         self._take_suit()
         while len(self._waiting) > self.params["max_waiting_sweeps"]:
             self._take(self._waiting.popleft())  # goes on with the suit data there is
@@ -223,6 +242,10 @@ class TrajectoryNode(GraphNode):
     def _on_suit_odometry(self, msg: Odometry) -> int:
         odometry = msg_to_odometry(msg)
         line_ns = self.on_time_line(self._suit_clock, _SUIT_INPUTS[1], odometry.stamp_ns)
+        began = self._restart.add(odometry.stamp_ns, odometry.position, odometry.quat)
+        if began is not None:
+            self._begin_again(began)
+            line_ns = self.on_time_line(self._suit_clock, _SUIT_INPUTS[1], odometry.stamp_ns)
         reason = self.pipeline.add_suit_odometry(line_ns, odometry.position, odometry.quat)
         if reason is not None:
             raise MalformedMessageError(reason)
@@ -264,17 +287,46 @@ class TrajectoryNode(GraphNode):
             self._take(self._waiting.popleft())
             taken = True
         if not taken and now - self._last_received >= self.params["suit_wait_s"]:  # no sweeps coming in
-            steps = self.pipeline.catch_up(1)
-            self._count_drops()
-            for step in steps:
-                self._publish(step, self._received.pop(step.sweep_ns, None))
+            self._publish_steps(self.pipeline.catch_up(1))
+
+    def _begin_again(self, reason: str) -> None:
+        """A new capture began (``reason``): the last one's sweeps go on with the suit data there is and what its
+        trajectory still holds is skipped; a new trajectory waits for the new capture's jump, with the sweeps of
+        the new capture received so far (after the LiDAR's step back, if it came first)."""
+        self.get_logger().warning(f"a new capture began: {reason}; the trajectory starts again and waits for "
+                                  "its jump")
+        last, new, newest = [], [], self._last_clock_ns
+        for sweep in self._waiting:
+            if new or stepped_back(sweep.clock_ns, newest):
+                new.append(sweep)
+            else:
+                last.append(sweep)
+            newest = sweep.clock_ns
+        self._waiting.clear()
+        for sweep in last:
+            self._take(sweep)
+        self._publish_steps(self.pipeline.catch_up())
+        for _ in range(self.pipeline.waiting):
+            self.count_frame(BEGAN_AGAIN, reason)
+        self.pipeline = TrajectoryPipeline(self._config)
+        self._dropped.clear()
+        self._received.clear()
+        self._suit_ns = dict.fromkeys(self._suit_ns)
+        self._last_ns = self._last_clock_ns = self._last_step = self._map_stamp_ns = None
+        self._lidar_clock.begin_again(ahead_ns=int(_CLOUD_QUEUE_S * 1e9))  # a LiDAR that did not step: the
+        self._suit_clock.begin_again()  # clouds of the last capture still queued are that recent at most
+        self._began_again.append(reason)
+        for sweep in new:
+            shift = self._lidar_clock.internal(_LIDAR, sweep.clock_ns, confirm=False) - sweep.stamp_ns
+            self._waiting.append(replace(sweep, stamp_ns=sweep.stamp_ns + shift, point_ns=sweep.point_ns + shift,
+                                         end_ns=sweep.end_ns + shift))
 
     def _take(self, sweep: _Sweep) -> None:
         """Give one sweep to the pipeline and publish what comes out."""
         if self._last_ns is not None and sweep.stamp_ns <= self._last_ns:
             self.count_frame("skipped: not after the last sweep", f"{sweep.stamp_ns} <= {self._last_ns}")
             return
-        self._last_ns = sweep.stamp_ns
+        self._last_ns, self._last_clock_ns = sweep.stamp_ns, sweep.clock_ns
         synced = self.pipeline.offset_ns is not None
         if synced:  # its latency is measured (those held for the jump wait for it by design)
             self._received[sweep.stamp_ns] = (sweep.received, self.pipeline.backlog > 0)
@@ -289,6 +341,10 @@ class TrajectoryNode(GraphNode):
             offset = int(self.pipeline.offset_ns)
             self._offset_pub.publish(Int64(data=offset))
             self.get_logger().info(f"jump seen: the suit's clock is {offset * 1e-6:+.1f} ms from the LiDAR's")
+        self._publish_steps(steps)
+
+    def _publish_steps(self, steps: list[TrajectoryStep]) -> None:
+        """Count the sweeps the pipeline dropped, then publish the steps it output."""
         self._count_drops()
         for step in steps:
             self._publish(step, self._received.pop(step.sweep_ns, None))
@@ -352,12 +408,15 @@ class TrajectoryNode(GraphNode):
             "map points": self.pipeline.site.size,
             "map points not kept (full)": self.pipeline.site.refused,
             "clock steps back (LiDAR, suit)": f"{len(self._lidar_clock.steps_ns)}, {len(self._suit_clock.steps_ns)}",
+            "new captures begun": len(self._began_again),
+            **({"last new capture": self._began_again[-1]} if self._began_again else {}),
             "pending": pipe.waiting + len(self._waiting),
             **{k: v for k, v in sorted(pipe.counts.items()) if k not in _DROPPED},
             **self._latency.values("latency_ms"),
             **self._catch_up_latency.values("catch_up_latency_ms"),
         }
-        return level, pipe.status, values
+        began = "a new capture began (a bag played again?); " if self._began_again and offset is None else ""
+        return level, began + pipe.status, values
 
 
 def main(argv: list[str] | None = None) -> int:
