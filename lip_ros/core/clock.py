@@ -11,7 +11,9 @@ stamps after a step on by its size, so that the time line goes on where it
 was, and takes times on it back to the clock's reading for the outputs. When
 the data show that a new capture began instead (a bag played again:
 :mod:`lip_ros.hsc4d.suit_restart`), :meth:`SteppingClock.begin_again` starts a
-new time line and refuses what the last capture still sends.
+new time line and refuses what the last capture still sends, or
+:meth:`SteppingClock.realign` puts the new capture's stream where another
+clock's time line has it.
 """
 
 from __future__ import annotations
@@ -22,9 +24,6 @@ __all__ = ["CLOCK_STEP_NS", "stepped_back", "SteppingClock"]
 
 #: a stamp this far behind its stream's newest is a clock that stepped back, not a message out of order
 CLOCK_STEP_NS = 500_000_000
-#: a stream that crossed its clock's latest step back this recently (on its time line) when a new capture begins
-#: is already in the new capture (the suit's streams cross a bag's loop within a few samples, a LiDAR within a sweep)
-_CROSSED_RECENTLY_NS = 2 * CLOCK_STEP_NS
 _FAR_BEHIND = "far behind the last message (a clock step if the next one is too)"
 _LAST_CAPTURE = "of the capture before a new one began"
 
@@ -59,24 +58,35 @@ class SteppingClock:
         self._last_capture: dict[str, int] = {}  # stream -> its newest stamp of the capture before (begin_again)
         self._ahead_ns: int | None = None  # ... and how far after it a stamp is the new capture's
 
-    def begin_again(self, ahead_ns: int | None = None) -> None:
+    def begin_again(self, ahead_ns: int | None = None, crossed_within_ns: int | None = None) -> None:
         """A new capture on this clock: a new time line, from each stream's next stamp. A stream that crossed the
-        clock's latest step back within the last second of its time line is in the new capture already; what
-        the others send is the last capture's, refused by :meth:`internal`, until a stamp falls far behind their
-        newest (their clock stepped back with the new capture), or (with ``ahead_ns``) comes more than
-        ``ahead_ns`` after it (a clock that may not have stepped: what the last capture may still send comes
-        sooner), or :meth:`end_last_capture`."""
+        clock's latest step back (the new capture's; within ``crossed_within_ns`` of its time line, if the step
+        may be an older one) is in the new capture already; what the others send is the last capture's, refused
+        by :meth:`internal`, until a stamp falls far behind their newest (their clock stepped back with the new
+        capture), or (with ``ahead_ns``) comes more than ``ahead_ns`` after it (what the last capture may still
+        send comes sooner: a clock that did not step, a stream silent across the step)."""
         latest = self._starts[-1] if self._starts else None
         self._ahead_ns = ahead_ns
         self._last_capture = {
             stream: newest for stream, (newest, _, crossed, _) in self._streams.items()
             if latest is None or crossed < len(self.steps_ns)
-            or newest + self._shifts[crossed] - latest > _CROSSED_RECENTLY_NS}
+            or (crossed_within_ns is not None and newest + self._shifts[crossed] - latest > crossed_within_ns)}
         self.steps_ns, self._starts, self._shifts, self._streams = [], [], [0], {}
 
-    def end_last_capture(self) -> None:
-        """Whatever comes from now on is the new capture's (the caller knows it otherwise: :meth:`begin_again`)."""
-        self._last_capture = {}
+    @property
+    def shift_ns(self) -> int:
+        """What the stamps of the streams past the clock's latest step are moved on by."""
+        return self._shifts[-1]
+
+    def realign(self, stream: str, stamp_ns: int, shift_ns: int) -> int:
+        """Move ``stream``'s stamps from ``stamp_ns`` on by ``shift_ns``, taken as a step (a new capture whose
+        stamps must keep their relation to another clock's on that clock's time line: its :attr:`shift_ns`);
+        the time of ``stamp_ns`` there. The time line must go on after where the clock's last step started it."""
+        self.steps_ns.append(shift_ns - self._shifts[-1])
+        self._shifts.append(shift_ns)
+        self._starts.append(stamp_ns + shift_ns)
+        self._streams[stream] = (stamp_ns, self._streams.get(stream, (0, 0))[1], len(self.steps_ns), None)
+        return stamp_ns + shift_ns
 
     def internal(self, stream: str, stamp_ns: int, confirm: bool = True) -> int | None:
         """The time of ``stream``'s stamp on the time line; None for a stamp far behind the stream's newest that

@@ -10,7 +10,8 @@ and vertical motion from the suit's pelvis IMU) and
 it); :mod:`~lip_ros.hsc4d.map_frame`; :mod:`~lip_ros.hsc4d.mount` (the nominal
 mounting and its estimate); :mod:`~lip_ros.hsc4d.pose_graph` (gtsam, the one
 module that imports it). :mod:`~lip_ros.hsc4d.suit_body` poses the suit's
-segments on the fused pelvis; :mod:`~lip_ros.hsc4d.sensors` names the topics.
+segments on the fused pelvis; :mod:`~lip_ros.hsc4d.sensors` names the topics;
+:mod:`~lip_ros.hsc4d.suit_restart` tells a new capture (a bag played again) from a clock step.
 :mod:`~lip_ros.hsc4d.scene_optimisation` (torch, the one module that imports
 it) moves the fused body onto the scene window by window (foot contact,
 sliding, orientation, smoothness). :mod:`~lip_ros.hsc4d.evaluation` measures

@@ -81,7 +81,7 @@ def test_a_new_capture_starts_a_new_time_line_and_refuses_what_the_last_one_stil
         clock.internal("imu", t + 5 * MS)
     clock.internal("lidar", 13 * S + 950 * MS, confirm=False)
     assert clock.internal("odometry", 0) is None and clock.internal("odometry", 10 * MS) is not None  # stepped
-    clock.begin_again()
+    clock.begin_again(crossed_within_ns=S)
     assert clock.steps_ns == []
     assert clock.internal("odometry", 20 * MS) == 20 * MS  # crossed the step just now: in the new capture
     assert clock.internal("imu", 14 * S - 5 * MS) is None and clock.internal("imu", 14 * S + 5 * MS) is None
@@ -103,8 +103,21 @@ def test_after_a_new_capture_a_stream_whose_clock_did_not_step_goes_on_when_told
     assert clock.internal("lidar", 2 * S + 400 * MS, confirm=False) is None
     assert clock.internal("lidar", 2 * S + 500 * MS, confirm=False) == 2 * S + 500 * MS
     assert clock.internal("lidar", 2 * S + 600 * MS, confirm=False) == 2 * S + 600 * MS
-    # without a time after which it is the new capture's, until the caller says so
-    clock.begin_again()
+    clock.begin_again()  # without a time after which it is the new capture's: until its clock steps back
     assert clock.internal("lidar", 5 * S, confirm=False) is None
-    clock.end_last_capture()
-    assert clock.internal("lidar", 5 * S, confirm=False) == 5 * S
+    assert clock.internal("lidar", 1 * S, confirm=False) == 1 * S
+
+
+def test_a_stream_realigned_goes_on_the_other_clock_s_time_line():
+    """A new capture: the suit's clock stepped back 14 s (its time line moved on by 14 s); the LiDAR's first pose
+    of it, 13.9 s behind its last, is put where the suit's shift has it, and the stream goes on from there."""
+    suit, lidar = SteppingClock(), SteppingClock()
+    for t in range(0, 14 * S, 10 * MS):
+        suit.internal("imu", t)
+    suit.internal("imu", 0)
+    assert suit.internal("imu", 10 * MS) == 14 * S + 10 * MS and suit.shift_ns == 14 * S
+    for t in range(0, 14 * S, 100 * MS):
+        lidar.internal("odometry", t, confirm=False)
+    assert lidar.realign("odometry", 50 * MS, suit.shift_ns) == 14 * S + 50 * MS
+    assert lidar.internal("odometry", 150 * MS, confirm=False) == 14 * S + 150 * MS
+    assert lidar.steps_ns == [14 * S] and lidar.external(14 * S + 150 * MS) == 150 * MS

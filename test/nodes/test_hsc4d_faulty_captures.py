@@ -115,7 +115,10 @@ def test_no_process_fails_and_every_sweep_is_accounted_for(runs, name: str) -> N
     assert sum(summary.frames.values()) == summary.frames_in, summary.frames
     stamps, positions = _poses(outputs)
     assert np.isfinite(positions).all()
-    assert summary.frames["pose"] >= summary.frames_in - (40 if name == "sensors" else 5), summary.frames
+    # sensors: the faults' own frames; loop: the first pass's sweeps still queued when the new capture begins (5 of
+    # them with another process busy on one of the two cores)
+    lost = {"sensors": 40, "loop": 15}.get(name, 5)
+    assert summary.frames["pose"] >= summary.frames_in - lost, summary.frames
 
 
 def test_the_trajectory_bridges_the_sensors_faults(runs) -> None:

@@ -41,12 +41,15 @@ each on its own time line as the trajectory node does
 poses there, and stamps its outputs with the stamps of the fused poses. When the
 suit's pelvis jumps across its clock's step back (a bag played again: the rule
 the trajectory node starts again by, :class:`lip_ros.hsc4d.suit_restart.SuitRestart`,
-on the same ``/mocap/odometry``), a new capture began: the poses waiting are
-posed and the last window optimised with what there is, then the node starts
-again (time lines, suit buffers, offset, map, the body's scale and the
-optimiser's sole height), skipping what still comes of the last capture
-(:meth:`lip_ros.core.clock.SteppingClock.begin_again`; its maps until the new
-capture's offset).
+on the same ``/mocap/odometry``), a new capture began: the suit's samples go on
+on its time line, the last capture's poses still coming are posed as before,
+and the new capture's first fused pose (behind the last one, or the first after
+the new capture's offset) is put on the suit's time line
+(:meth:`lip_ros.core.clock.SteppingClock.realign`: the new offset holds
+between the two clocks' stamps); before it, the last window is optimised with
+what there is, and the optimiser (its sole height, the map) and the body's
+scale start again. The maps that come between are not used (which capture's
+is not known).
 """
 
 from __future__ import annotations
@@ -72,7 +75,7 @@ from lip_msgs_py import (
     rclpy_message_class,
 )
 from lip_msgs_py.cdr import cdr_stamp, imu_samples
-from lip_ros.core.clock import SteppingClock
+from lip_ros.core.clock import SteppingClock, stepped_back
 from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_runtime import set_threads
@@ -95,7 +98,7 @@ from lip_ros.nodes.base import (
     suit_input,
 )
 from lip_ros.nodes.hsc4d import FUSED_ODOMETRY_QOS, HSC4D_PARAMS_FILE
-from lip_ros.nodes.hsc4d.trajectory import BEGAN_AGAIN, TrajectoryNode
+from lip_ros.nodes.hsc4d.trajectory import TrajectoryNode
 from lip_ros.outputs import pose_messages
 
 __all__ = ["BodyNode", "main"]
@@ -154,15 +157,23 @@ class BodyNode(GraphNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NAME, **kwargs)
         p = self.params
+        gap_ns = int(p["max_imu_gap_s"] * 1e9)
         try:
-            self._new_body()
+            capacity = TrajectoryConfig(suit_rate_hz=p["suit_rate_hz"]).suit_capacity
+            self.body = SuitBody(load_skeleton(), SuitBodyConfig(capacity=capacity, body_scale=p["body_scale"] or 1.0,
+                                                                 max_gap_ns=gap_ns, max_hold_ns=gap_ns))
         except ValueError as exc:
             raise ParameterError(str(exc)) from exc
+        self._scale_from_height = p["body_scale"] == 0
         self._offset_ns: int | None = None
         self._waiting: deque[_FusedPose] = deque()
         self._lidar_clock, self._suit_clock = SteppingClock(), SteppingClock()  # time lines across clock steps
         self._restart = SuitRestart()
         self._began_again = 0  # new captures begun
+        #: while a new capture began and its first fused pose has not come: the last fused stamp before it, and
+        #: whether an offset came since
+        self._new_capture: tuple[int | None, bool] | None = None
+        self._last_fused_ns: int | None = None
         self._degraded = 0
         self._latency = LatencyWindow()  # fused pose received -> body published
         self._out = self._pose_publishers(HSC4D_TOPICS)
@@ -201,23 +212,13 @@ class BodyNode(GraphNode):
                            raw=True, polled=True)
         self.create_timer(0.02, self._drain, self.group, clock=self.steady)
 
-    def _new_body(self) -> None:
-        """The suit's body as the parameters set it: empty buffers, at the contract's size (or ``body_scale``)
-        until the first fused pose scales it (``body_scale`` 0)."""
-        p = self.params
-        gap_ns = int(p["max_imu_gap_s"] * 1e9)
-        capacity = TrajectoryConfig(suit_rate_hz=p["suit_rate_hz"]).suit_capacity
-        self.body = SuitBody(load_skeleton(), SuitBodyConfig(capacity=capacity, body_scale=p["body_scale"] or 1.0,
-                                                             max_gap_ns=gap_ns, max_hold_ns=gap_ns))
-        self._scale_from_height = p["body_scale"] == 0
-
     def _pose_publishers(self, topics: Any) -> dict[str, Any]:
         """A reliable publisher per pose output of ``topics`` (a PoseTopics)."""
         return {getattr(topics, name): self.create_publisher(rclpy_message_class(msgtype), getattr(topics, name),
                                                              RELIABLE) for name, msgtype in _POSE_TYPES}
 
     def _on_map(self, msg: PointCloud2) -> None:
-        if self._began_again and self._offset_ns is None:  # the last capture's or the new one's: not known which
+        if self._new_capture is not None:  # the last capture's or the new one's: not known which
             self._not_optimised["optimisation: maps not used, a new capture began"] += 1
             return
         try:
@@ -236,8 +237,9 @@ class BodyNode(GraphNode):
         line_ns = self.on_time_line(self._suit_clock, "suit odometry", odometry.stamp_ns)
         began = self._restart.add(odometry.stamp_ns, odometry.position, odometry.quat)
         if began is not None:
-            self._begin_again(began)
-            line_ns = self.on_time_line(self._suit_clock, "suit odometry", odometry.stamp_ns)
+            self.get_logger().warning(f"a new capture began: {began}; its poses go on from its first fused pose")
+            self._new_capture = (self._last_fused_ns, False)
+            self._began_again += 1
         if self._optimiser is None:
             return odometry.stamp_ns
         if self._suit_stamps and line_ns <= self._suit_stamps[-1]:
@@ -248,14 +250,10 @@ class BodyNode(GraphNode):
         self._suit_poses.append(T)
         return odometry.stamp_ns
 
-    def _begin_again(self, reason: str) -> None:
-        """A new capture began (``reason``): pose the last one's poses received so far (the new capture's come
-        after its jump) with the suit samples received so far, optimise its last window with what there is,
-        then start again."""
-        self.get_logger().warning(f"a new capture began: {reason}; posing again from the new capture's offset")
-        for segment in self.body.segments:  # not take_polled: this is the suit odometry's handler
-            self.take_waiting(f"suit {segment}")
-        self.take_waiting("fused odometry")
+    def _first_of_new_capture(self, stamp_ns: int) -> int:
+        """The new capture's first fused pose (stamped ``stamp_ns``): pose the last capture's poses waiting and
+        optimise its last window with what there is, start the optimiser and the body's scale again; its time on
+        the suit's time line."""
         while self._waiting:
             self._pose(self._waiting.popleft())
         if self._optimiser is not None:
@@ -263,16 +261,10 @@ class BodyNode(GraphNode):
             if len(self._optimiser):
                 self._skip(None, "a new capture began")
             self._optimiser = SceneOptimiser(self._optimiser.config)
-            self._suit_stamps.clear()
-            self._suit_poses.clear()
             self._map = self._map_failed = None
-        self._new_body()
-        self._offset_ns = None
-        self._lidar_clock.begin_again()
-        self._suit_clock.begin_again()
-        self._raw = {s: [] for s in self.body.segments}
-        self._newest, self._arrived = {}, {}
-        self._began_again += 1
+        self._scale_from_height = self.params["body_scale"] == 0
+        self._new_capture = None
+        return self._lidar_clock.realign("fused odometry", stamp_ns, self._suit_clock.shift_ns)
 
     def _suit_pose(self, suit_ns: int) -> np.ndarray | None:
         """The suit's own pelvis pose nearest ``suit_ns`` (within max_imu_gap_s), or None."""
@@ -354,7 +346,8 @@ class BodyNode(GraphNode):
 
     def _on_offset(self, msg: Int64) -> None:
         self._offset_ns = int(msg.data)
-        self._lidar_clock.end_last_capture()  # the trajectory sends the new capture's offset before its poses
+        if self._new_capture is not None:  # the new capture's (the trajectory sends it before its poses)
+            self._new_capture = (self._new_capture[0], True)
         self._drain()
 
     def _on_imu(self, segment: str, data: bytes) -> int:
@@ -392,12 +385,12 @@ class BodyNode(GraphNode):
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
         now = time.monotonic()
-        # the trajectory node's output, in order: a step back in it is the LiDAR's clock stepping
-        try:
+        new = self._new_capture
+        if new is not None and (new[1] or stepped_back(odometry.stamp_ns, new[0])):
+            line_ns = self._first_of_new_capture(odometry.stamp_ns)
+        else:  # the trajectory node's output, in order: a step back in it is the LiDAR's clock stepping
             line_ns = self.on_time_line(self._lidar_clock, "fused odometry", odometry.stamp_ns, confirm=False)
-        except MalformedMessageError as exc:  # of the capture before a new one began
-            self.count_frame(BEGAN_AGAIN, f"{odometry.stamp_ns}: {exc}")
-            raise
+        self._last_fused_ns = odometry.stamp_ns
         self._waiting.append(_FusedPose(odometry.stamp_ns, line_ns, odometry.frame_id, T, now,
                                         now + self.params["suit_wait_s"]))
         if len(self._waiting) > self.params["max_waiting_poses"]:

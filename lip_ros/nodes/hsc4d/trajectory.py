@@ -72,6 +72,7 @@ from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, Traje
 from lip_ros.nodes.base import (
     IMU_INPUT,
     LATCHED,
+    SUIT_QUEUE_S,
     GraphNode,
     LatencyWindow,
     Param,
@@ -179,7 +180,7 @@ class TrajectoryNode(GraphNode):
         self._map_stamp_ns: int | None = None
         self._lidar_clock, self._suit_clock = SteppingClock(), SteppingClock()  # time lines across clock steps
         self._restart = SuitRestart()
-        self._began_again: list[str] = []  # why each new capture began
+        self._began_again, self._why_began = 0, ""  # new captures begun, why the last one did
         self._published = 0
         self._latency = LatencyWindow()  # cloud received -> odometry published, sweeps with no backlog before them
         self._catch_up_latency = LatencyWindow()  # ... sweeps after the sync that waited behind the backlog
@@ -313,9 +314,11 @@ class TrajectoryNode(GraphNode):
         self._received.clear()
         self._suit_ns = dict.fromkeys(self._suit_ns)
         self._last_ns = self._last_clock_ns = self._last_step = self._map_stamp_ns = None
-        self._lidar_clock.begin_again(ahead_ns=int(_CLOUD_QUEUE_S * 1e9))  # a LiDAR that did not step: the
-        self._suit_clock.begin_again()  # clouds of the last capture still queued are that recent at most
-        self._began_again.append(reason)
+        # the suit's clock stepped back with the new capture; the LiDAR's may not have, or long ago: a sweep it
+        # sends within a LiDAR queue's length of its last one is the last capture's
+        self._suit_clock.begin_again(ahead_ns=int(SUIT_QUEUE_S * 1e9))
+        self._lidar_clock.begin_again(ahead_ns=int(_CLOUD_QUEUE_S * 1e9), crossed_within_ns=int(_CLOUD_QUEUE_S * 1e9))
+        self._began_again, self._why_began = self._began_again + 1, reason
         for sweep in new:
             shift = self._lidar_clock.internal(_LIDAR, sweep.clock_ns, confirm=False) - sweep.stamp_ns
             self._waiting.append(replace(sweep, stamp_ns=sweep.stamp_ns + shift, point_ns=sweep.point_ns + shift,
@@ -408,8 +411,8 @@ class TrajectoryNode(GraphNode):
             "map points": self.pipeline.site.size,
             "map points not kept (full)": self.pipeline.site.refused,
             "clock steps back (LiDAR, suit)": f"{len(self._lidar_clock.steps_ns)}, {len(self._suit_clock.steps_ns)}",
-            "new captures begun": len(self._began_again),
-            **({"last new capture": self._began_again[-1]} if self._began_again else {}),
+            "new captures begun": self._began_again,
+            **({"last new capture": self._why_began} if self._began_again else {}),
             "pending": pipe.waiting + len(self._waiting),
             **{k: v for k, v in sorted(pipe.counts.items()) if k not in _DROPPED},
             **self._latency.values("latency_ms"),
