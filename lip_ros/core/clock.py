@@ -81,7 +81,8 @@ class SteppingClock:
     def realign(self, stream: str, stamp_ns: int, shift_ns: int) -> int:
         """Move ``stream``'s stamps from ``stamp_ns`` on by ``shift_ns``, taken as a step (a new capture whose
         stamps must keep their relation to another clock's on that clock's time line: its :attr:`shift_ns`);
-        the time of ``stamp_ns`` there. The time line must go on after where the clock's last step started it."""
+        the time of ``stamp_ns`` there (:meth:`external` takes times back right if that is after where the last
+        step started the time line)."""
         self.steps_ns.append(shift_ns - self._shifts[-1])
         self._shifts.append(shift_ns)
         self._starts.append(stamp_ns + shift_ns)
