@@ -3,7 +3,10 @@
 :func:`refine_bag` plays a bag's hip LiDAR, suit segments and suit odometry,
 in the order they were logged, into a
 :class:`~lip_ros.hsc4d.refinement.CaptureRefiner` and refines the capture;
-malformed messages are counted and left out, as the nodes do.
+malformed messages are counted and left out, as the nodes do. A bag that plays
+a capture again (a loop recorded, or a new capture on the same sensors: the
+nodes' rule, :class:`~lip_ros.hsc4d.suit_restart.SuitRestart`) is refined up
+to where the next capture begins; the sweeps after are counted.
 :func:`refinement_messages` gives the result as the ``/hsc4d/refined/*``
 messages (:data:`~lip_ros.hsc4d.sensors.REFINED_TOPICS`), and
 :func:`write_refinement_bag` records them (reliable; the map latched, as a
@@ -45,9 +48,13 @@ from lip_ros.hsc4d.sensors import (
     SUIT_ODOMETRY_TOPIC,
     suit_imu_topic,
 )
+from lip_ros.hsc4d.suit_restart import SuitRestart
 from lip_ros.outputs import pose_messages
 
-__all__ = ["refine_bag", "refinement_messages", "write_refinement_bag"]
+__all__ = ["refine_bag", "refinement_messages", "write_refinement_bag", "LATER_CAPTURE"]
+
+#: how :func:`refine_bag` counts the sweeps of a capture after the first in the bag
+LATER_CAPTURE = "sweep: of a later capture (only the first is refined)"
 
 _LATCHED_QOS = bag_qos(QosReliability.RELIABLE, 1, QosDurability.TRANSIENT_LOCAL)
 
@@ -57,17 +64,26 @@ def refine_bag(bag: str | Path, config: RefinementConfig | None = None,
     """Refine the HSC4D capture in ``bag`` (``progress(sweeps)`` after each sweep): the refiner (its live record
     and pipeline), the refinement, and the messages left out by reason. ValueError if nothing could be posed."""
     refiner = CaptureRefiner(config)
+    restart = SuitRestart()
+    later = False  # a new capture began: the rest is not the refined one's
     segment_of = {suit_imu_topic(s): s for s in refiner.body.segments}
     skipped: Counter[str] = Counter()
     held: dict[str, list[Any]] = {s: [] for s in refiner.body.segments}  # suit samples since the last sweep
     last_ns: int | None = None
     sweeps = 0
     for m in read_messages(bag, [HIP_LIDAR_TOPIC, SUIT_ODOMETRY_TOPIC, *segment_of]):
+        if later:
+            if m.topic == HIP_LIDAR_TOPIC:
+                skipped[LATER_CAPTURE] += 1
+            continue
         try:
             if m.topic in segment_of:
                 held[segment_of[m.topic]].append(msg_to_imu(m.msg))
             elif m.topic == SUIT_ODOMETRY_TOPIC:
                 o = msg_to_odometry(m.msg)
+                later = restart.add(o.stamp_ns, o.position, o.quat) is not None
+                if later:
+                    continue
                 if reason := refiner.add_suit_odometry(o.stamp_ns, o.position, o.quat):
                     skipped[f"suit odometry: {reason}"] += 1
             else:

@@ -177,3 +177,17 @@ def test_a_capture_played_again_is_tracked_again_from_its_jump(runs) -> None:
                if s.name == "hsc4d_trajectory_node: frames" and s.values["new captures begun"] == "1"
                and s.values["suit clock offset (ms)"] == "unknown"]
     assert waiting and all(s.level == 1 and s.message.startswith("a new capture began") for s in waiting), waiting[:1]
+
+
+def test_the_offline_refinement_of_a_capture_played_again_refines_the_first_pass(runs) -> None:
+    """``lip_process_bag --refine``'s refinement (:func:`refine_bag`) stops where the capture begins again (the nodes'
+    rule) and counts the sweeps after; before, the second pass's sweeps past the first's last stamp went on the
+    first pass's trajectory."""
+    from lip_ros.hsc4d.batch import LATER_CAPTURE, refine_bag  # torch
+
+    bag = runs["loop"][0]
+    _, refinement, skipped = refine_bag(bag)
+    clean = _poses(runs["clean"][1])[0]
+    first_pass = clean[clean < clean[0] + 14 * 10**9]
+    assert refinement.stamps_ns.max() <= first_pass.max() and len(refinement.stamps_ns) >= len(first_pass) - 3
+    assert skipped[LATER_CAPTURE] >= len(clean) - 3, skipped  # the second pass, whole but a sweep or two
