@@ -106,9 +106,8 @@ _CATCH_UP_SHARE = 0.3
 _SUIT_INPUTS = ("suit pelvis imu", "suit odometry")  # the input names of the suit's topics
 _LIDAR = "hip lidar"  # the LiDAR's input name
 _MAX_TRACKED = 1000  # sweeps whose receipt time is kept for the latency
-#: how a sweep the trajectory held when a new capture began is accounted for (the body node's for the poses of the
-#: last capture that reach it after it began again)
-BEGAN_AGAIN = "skipped: a new capture began"
+#: how a sweep of the last capture is accounted for when a new one began (held by the trajectory, or come late)
+_BEGAN_AGAIN = "skipped: a new capture began"
 
 
 @dataclass(frozen=True)
@@ -219,7 +218,7 @@ class TrajectoryNode(GraphNode):
         try:
             line_ns = self.on_time_line(self._lidar_clock, _LIDAR, stamp_ns, confirm=False)
         except MalformedMessageError as exc:  # of the capture before a new one began
-            self.count_frame(BEGAN_AGAIN, f"{stamp_ns}: {exc}")
+            self.count_frame(_BEGAN_AGAIN, f"{stamp_ns}: {exc}")
             raise
         point_ns = line_ns + t.astype(np.int64)
         self._waiting.append(_Sweep(line_ns, points.astype(np.float64), point_ns, received, int(point_ns.max()),
@@ -308,7 +307,7 @@ class TrajectoryNode(GraphNode):
             self._take(sweep)
         self._publish_steps(self.pipeline.catch_up())
         for _ in range(self.pipeline.waiting):
-            self.count_frame(BEGAN_AGAIN, reason)
+            self.count_frame(_BEGAN_AGAIN, reason)
         self.pipeline = TrajectoryPipeline(self._config)
         self._dropped.clear()
         self._received.clear()
