@@ -45,7 +45,7 @@ class SuitRestart:
 
     def __init__(self, config: SuitRestartConfig | None = None) -> None:
         self.config = config or SuitRestartConfig()
-        self._last: tuple[int, np.ndarray, np.ndarray] | None = None  # stamp, position, rotation of the last sample
+        self._last: tuple[int, np.ndarray, np.ndarray] | None = None  # stamp, position, quaternion of the last sample
 
     def add(self, stamp_ns: int, position: np.ndarray, quat: np.ndarray) -> str | None:
         """One sample of the suit's odometry as its clock stamped it: why a new capture begins with it (its clock
@@ -55,15 +55,14 @@ class SuitRestart:
         norm = float(np.linalg.norm(quat))
         if not (np.isfinite(position).all() and np.isfinite(quat).all() and norm > 0.0):
             return None
-        R = quat_to_matrix(quat / norm)
-        last, self._last = self._last, (int(stamp_ns), position, R)
+        last, self._last = self._last, (int(stamp_ns), position, quat / norm)
         if last is None:
             return None
         step_ns = stepped_back(int(stamp_ns), last[0])
-        if not step_ns:
+        if not step_ns:  # every sample but at a step: nothing more to do
             return None
         moved = float(np.linalg.norm(position - last[1]))
-        turned = float(np.degrees(geodesic_angle(last[2], R)))
+        turned = float(np.degrees(geodesic_angle(quat_to_matrix(last[2]), quat_to_matrix(quat / norm))))
         if moved <= self.config.max_move_m and turned <= self.config.max_turn_deg:
             return None
         return (f"the suit's clock stepped back {step_ns * 1e-9:.3f} s and its pelvis jumped {moved:.2f} m, "
