@@ -57,9 +57,10 @@ from lip_ros.middleware import use_lip_dds_profile
 from lip_ros.resources import params_path
 
 __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "non_negative", "numbers", "GraphNode",
-           "LatencyWindow", "RELIABLE", "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input", "LATCHED",
-           "node_defaults", "check_params_files", "run_nodes", "FrameArrivals", "tf_publisher", "rejection_reason",
-           "SKIPPED", "stop_on_signals"]
+           "LatencyWindow", "RELIABLE", "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input",
+           "LATCHED", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals", "LocalTopics",
+           "BetweenNodesPublisher", "DIRECT_INPUTS_PARAM", "tf_publisher", "rejection_reason", "SKIPPED",
+           "stop_on_signals"]
 
 #: How ``GraphNode.count_frame`` names a frame that ended without a pose.
 SKIPPED = "skipped"
@@ -247,6 +248,49 @@ class FrameArrivals:
             return self._t.pop(pose_stamp_ns, None)
 
 
+class LocalTopics:
+    """The topics between the nodes of one process (a composed graph): a message published on one is handed to the
+    process's own subscribers of it by a direct call, on the publishing thread, instead of through DDS and the
+    subscriber's executor (whose wake-up cost 2-3 ms a hop in the LIP graph: docs/reliability.md "Latency against
+    the transport floor"). Subscribers register while the nodes are made; the receiving node's callbacks are
+    serialised by its own lock (:class:`GraphNode`)."""
+
+    def __init__(self) -> None:
+        self._receivers: dict[str, list[Callable[[Any], None]]] = {}
+
+    def subscribe(self, topic: str, callback: Callable[[Any], None]) -> None:
+        """Call ``callback`` with every message published on ``topic`` (a resolved name) in this process."""
+        self._receivers.setdefault(topic, []).append(callback)
+
+    def deliver(self, topic: str, msg: Any) -> None:
+        """Hand ``msg`` to this process's subscribers of ``topic``, in the order they subscribed."""
+        for callback in self._receivers.get(topic, ()):
+            callback(msg)
+
+
+class BetweenNodesPublisher:
+    """A publisher of a topic between the graph's nodes (:data:`BETWEEN_NODES`): to the nodes of the same process
+    directly (:class:`LocalTopics`), first, then over DDS for nodes of other processes, recorders and tools."""
+
+    def __init__(self, node: Node, msg_type: type, topic: str, local: LocalTopics | None) -> None:
+        self._publisher = node.create_publisher(msg_type, topic, BETWEEN_NODES)
+        self._topic = self._publisher.topic_name
+        self._local = local
+
+    def publish(self, msg: Any) -> None:
+        """Publish ``msg``."""
+        if self._local is not None:
+            self._local.deliver(self._topic, msg)
+        self._publisher.publish(msg)
+
+
+#: The parameter of a node whose inputs come from the graph's other nodes (``add_input(from_graph=True)``).
+DIRECT_INPUTS_PARAM = Param("in fusion_node, take the other nodes' outputs by direct calls: a frame runs through the "
+                            "stages on one thread, the lowest latency (false: through DDS, each stage on its own "
+                            "thread, overlapping consecutive frames: more throughput for a bag played faster than "
+                            "real time)")
+
+
 class GraphNode(Node):
     """A node of a capture graph: subclasses set ``NAME``, ``PARAMS_FILE`` (their branch's file in ``params/``)
     and ``PARAMS``, and override :meth:`frame_status`."""
@@ -264,11 +308,15 @@ class GraphNode(Node):
     }
     PARAMS: dict[str, Param] = {}
 
-    def __init__(self, name: str, **kwargs: Any) -> None:
+    def __init__(self, name: str, local_topics: LocalTopics | None = None, **kwargs: Any) -> None:
+        #: Every callback of the node runs holding this (its stage objects are not thread-safe): its own
+        #: executor's, and those other nodes of the process call directly (``local_topics``).
+        self.serial = threading.RLock()
         super().__init__(name, **kwargs)
+        self.local_topics = local_topics
         self.params = self._declare_parameters()
         self.backend = RclpyBackend()
-        #: All of this node's callbacks, one at a time (its stage objects are not thread-safe), whatever executor.
+        #: All of this node's callbacks in one group, so that no executor waits on :attr:`serial` with a thread.
         self.group = MutuallyExclusiveCallbackGroup()
         self.frames: Counter[str] = Counter()  # "frames <what>" of the diagnostics, without the prefix
         self._reported: Counter[str] = Counter()  # self.frames at the last report
@@ -280,6 +328,30 @@ class GraphNode(Node):
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)  # also ticks while a bag's /clock is paused or over
         self.create_timer(self.params["diagnostics_period_s"], self._on_diagnostics_timer, self.group,
                           clock=self.steady)
+
+    def _serialised(self, callback: Callable[..., Any]) -> Callable[..., Any]:
+        def call(*args: Any) -> Any:
+            with self.serial:
+                return callback(*args)
+        return call
+
+    def create_subscription(self, msg_type: Any, topic: str, callback: Callable[..., Any], *args: Any,
+                            **kwargs: Any) -> Subscription:
+        """rclpy's, with the callback holding :attr:`serial`."""
+        return super().create_subscription(msg_type, topic, self._serialised(callback), *args, **kwargs)
+
+    def create_timer(self, timer_period_sec: float, callback: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        """rclpy's, with the callback holding :attr:`serial`."""
+        return super().create_timer(timer_period_sec, self._serialised(callback), *args, **kwargs)
+
+    def create_service(self, srv_type: Any, srv_name: str, callback: Callable[..., Any], *args: Any,
+                       **kwargs: Any) -> Any:
+        """rclpy's, with the callback holding :attr:`serial`."""
+        return super().create_service(srv_type, srv_name, self._serialised(callback), *args, **kwargs)
+
+    def create_between_publisher(self, msg_type: type, topic: str) -> BetweenNodesPublisher:
+        """A publisher to the graph's other nodes: directly to those of this process, over DDS to the others."""
+        return BetweenNodesPublisher(self, msg_type, topic, self.local_topics)
 
     @classmethod
     def parameter_names(cls) -> set[str]:
@@ -314,7 +386,7 @@ class GraphNode(Node):
 
     def add_input(self, name: str, topic: str, msg_type: type, rate_hz: float, handle: Callable[[Any], int],
                   qos: QoSProfile = qos_profile_sensor_data, raw: bool = False, polled: bool = False,
-                  stamped_at: float | None = None, count_missing: bool = False) -> None:
+                  stamped_at: float | None = None, count_missing: bool = False, from_graph: bool = False) -> None:
         """Subscribe ``handle`` (returns the message stamp, raises MalformedMessageError to reject) with a
         monitor of the input's rate, age and rejections on /diagnostics; with ``raw`` it gets the message's CDR
         bytes (a fast input decoded later, in batches). A ``polled`` input is not waited on by the executor: the
@@ -324,7 +396,10 @@ class GraphNode(Node):
         takes. ``stamped_at``: how long (s) a sensor's message normally takes from its stamp to its
         publication (0 for an IMU, a LiDAR's sweep time); with it, messages arriving ``max_input_delay_s`` later
         than that are reported late (None: not checked, e.g. an input from another node). ``count_missing``: the
-        sensor stamps each message one period after the last (a LiDAR), so gaps in the stamps are lost messages."""
+        sensor stamps each message one period after the last (a LiDAR), so gaps in the stamps are lost messages.
+        ``from_graph``: the input is another node's output (:meth:`create_between_publisher`, QoS
+        :data:`BETWEEN_NODES`); in a composed graph (``local_topics``) of a node whose ``direct_inputs``
+        (:data:`DIRECT_INPUTS_PARAM`) is true it is handed over by a direct call."""
         max_delay = None if stamped_at is None else stamped_at + self.params["max_input_delay_s"]
         monitor = SensorMonitor(name, expected_rate_hz=rate_hz, stale_after_s=self.params["stale_after_s"],
                                 max_delay_s=max_delay, count_missing=count_missing)
@@ -338,8 +413,12 @@ class GraphNode(Node):
                 monitor.reject(now, rejection_reason(exc))
                 self.get_logger().warning(f"{name} ({topic}): message skipped: {exc}", throttle_duration_sec=5.0)
 
+        qos = BETWEEN_NODES if from_graph else qos
         if polled and qos.reliability != ReliabilityPolicy.BEST_EFFORT:
             raise ValueError(f"polled input {name} must be best effort (no QoS event of it is handled)")
+        if from_graph and self.local_topics is not None and self.params.get("direct_inputs", False):
+            self.local_topics.subscribe(self.resolve_topic_name(topic), self._serialised(callback))
+            return
         group = _NOT_WAITED_ON if polled else self.group
         self._takers[name] = (self.create_subscription(msg_type, topic, callback, qos, callback_group=group,
                                                        raw=raw), callback)

@@ -1,5 +1,6 @@
-"""How a graph's spinning threads tell a shutdown from a failure (rclpy in this process, no traffic), and how a
-node takes a fast input's waiting messages itself, and polls an input no executor waits on (over DDS)."""
+"""How a graph's spinning threads tell a shutdown from a failure (rclpy in this process, no traffic), how a
+node takes a fast input's waiting messages itself, and polls an input no executor waits on (over DDS), and how the
+nodes of one process hand their messages to each other directly."""
 
 from __future__ import annotations
 
@@ -10,9 +11,18 @@ import pytest
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 from std_msgs.msg import Int64
 
-from lip_ros.nodes.base import RELIABLE, GraphNode, _spin_each, suit_input
+from lip_ros.nodes.base import (
+    BETWEEN_NODES,
+    DIRECT_INPUTS_PARAM,
+    RELIABLE,
+    GraphNode,
+    LocalTopics,
+    _spin_each,
+    suit_input,
+)
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
 
 pytestmark = pytest.mark.ros
@@ -151,4 +161,85 @@ def test_a_polled_input_is_taken_only_when_the_node_polls_it() -> None:
         executor.shutdown()
         driver.destroy_node()
         probe.destroy_node()
+        rclpy.try_shutdown()
+
+
+_BETWEEN = "/lip_ros_test/between"
+
+
+class _Sender(GraphNode):
+    """A graph node with one output to the graph's other nodes."""
+
+    NAME = "lip_ros_test_sender"
+    PARAMS_FILE = LIP_PARAMS_FILE
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(self.NAME, **kwargs)
+        self.out = self.create_between_publisher(Int64, _BETWEEN)
+
+
+class _Receiver(GraphNode):
+    """A graph node with that output as its input; it records, per message, the thread it ran on and whether its
+    lock was held (another thread could not take it)."""
+
+    NAME = "pose_node"  # its section of the parameter file has the default of direct_inputs
+    PARAMS_FILE = LIP_PARAMS_FILE
+    PARAMS = {"direct_inputs": DIRECT_INPUTS_PARAM}
+
+    def __init__(self, name: str, **kwargs) -> None:
+        super().__init__(name, **kwargs)
+        self.handled: list[tuple[int, int, bool]] = []
+        self.add_input("between", _BETWEEN, Int64, 10.0, self._on_message, from_graph=True)
+
+    def _on_message(self, msg: Int64) -> int:
+        free: list[bool] = []
+        probe = threading.Thread(target=lambda: free.append(self.serial.acquire(blocking=False)))
+        probe.start()
+        probe.join()
+        if free[0]:
+            self.serial.release()
+        self.handled.append((msg.data, threading.get_ident(), not free[0]))
+        return msg.data
+
+
+def test_nodes_of_one_process_hand_their_messages_over_directly() -> None:
+    """With ``local_topics`` (a composed graph) a message published to the graph's other nodes reaches those of the
+    process that take their inputs directly within ``publish``, on the publishing thread, holding the receiver's
+    lock, counted by its input's monitor, with no executor spinning; it still goes over DDS, to a node of the
+    process with ``direct_inputs`` false, to one that was not composed (no ``local_topics``) and to any other
+    subscriber, each on its executor's thread."""
+    rclpy.init()
+    topics = LocalTopics()
+    sender = _Sender(local_topics=topics)
+    direct = _Receiver("lip_ros_test_receiver_direct", local_topics=topics)
+    through_dds = _Receiver("lip_ros_test_receiver_dds", local_topics=topics,
+                            parameter_overrides=[Parameter("direct_inputs", value=False)])
+    alone = _Receiver("lip_ros_test_receiver_alone")
+    outside = rclpy.create_node("lip_ros_test_between_outside")
+    seen: list[int] = []
+    outside.create_subscription(Int64, _BETWEEN, lambda msg: seen.append(msg.data), BETWEEN_NODES)
+    executor = SingleThreadedExecutor()
+    for node in (through_dds, alone, outside):
+        executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        deadline = time.monotonic() + 10.0
+        while sender.count_subscribers(_BETWEEN) < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for k in (1, 2):
+            sender.out.publish(Int64(data=k))
+            assert direct.handled[-1] == (k, threading.get_ident(), True)
+        while (len(seen) < 2 or len(alone.handled) < 2 or len(through_dds.handled) < 2) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert seen == [1, 2]
+        for receiver in (through_dds, alone):
+            assert [m for m, _, _ in receiver.handled] == [1, 2]
+            assert all(t == spinner.ident and held for _, t, held in receiver.handled)
+        assert len(direct.handled) == 2  # not again through DDS
+        assert direct._inputs["between"][2].report(direct.now_ns() * 1e-9).accepted == 2
+    finally:
+        executor.shutdown()
+        for node in (outside, alone, through_dds, direct, sender):
+            node.destroy_node()
         rclpy.try_shutdown()

@@ -48,7 +48,7 @@ from lip_ros.lip.dot_latency import LatencyConfig
 from lip_ros.lip.sensors import IMU_NAMES
 from lip_ros.lip.stages import CLOCKS_REASON, BoneFrame, ImuStage, Outcome
 from lip_ros.nodes.base import (
-    BETWEEN_NODES,
+    DIRECT_INPUTS_PARAM,
     IMU_INPUT,
     LATCHED,
     GraphNode,
@@ -94,6 +94,7 @@ class CalibrationNode(GraphNode):
         "bone_topics": Param("outputs: calibrated bone orientation and free acceleration in L, order as imu_topics",
                              _four_topics),
         "calibration_topic": Param("output (latched): the calibration state as YAML"),
+        "direct_inputs": DIRECT_INPUTS_PARAM,
         "ground_topic": GROUND_PARAM,
         "heading_reset_service": Param("the DOT driver's std_srvs/Trigger service that resets the four DOTs' "
                                        "headings together, called whenever a calibration starts ('' = none)"),
@@ -125,7 +126,7 @@ class CalibrationNode(GraphNode):
             raise ParameterError(f"cannot load calibration_file {file}: {exc}") from exc
         self._latency = LatencyWindow()
         self._estimated: dict[str, int | None] = dict.fromkeys(IMU_NAMES)  # the latency estimates last logged
-        self._bone_pubs = [self.create_publisher(Imu, topic, BETWEEN_NODES) for topic in p["bone_topics"]]
+        self._bone_pubs = [self.create_between_publisher(Imu, topic) for topic in p["bone_topics"]]
         self._state_pub = self.create_publisher(String, p["calibration_topic"], LATCHED)
         self._published_state: tuple[int, bool] | None = None
         self._held = 0  # frames published with a held (not interpolated) sample of some DOT
@@ -135,7 +136,7 @@ class CalibrationNode(GraphNode):
             self.add_input(name, topic, Imu, p["imu_rate_hz"], lambda msg, name=name: self._on_imu(name, msg),
                            IMU_INPUT, stamped_at=0.0)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
-                       self._on_performer, BETWEEN_NODES)
+                       self._on_performer, from_graph=True)
         subscribe_ground(self, p["ground_topic"], self._on_ground)
         self.create_service(Trigger, "lip/start_calibration", self._on_start, callback_group=self.group)
         self.create_service(Trigger, "lip/reset_calibration", self._on_reset, callback_group=self.group)
@@ -172,9 +173,11 @@ class CalibrationNode(GraphNode):
             if f.outcome == Outcome.POSE:
                 frame_id, received = f.tag
                 quats = matrix_to_quat(f.bone_rot)
-                for pub, q, acc in zip(self._bone_pubs, quats, f.free_acc):
-                    pub.publish(imu_to_msg(self.backend, imu_sample(f.pose_stamp_ns, frame_id, quat=q, accel=acc)))
-                self._latency.add(time.monotonic() - received)
+                bones = [imu_to_msg(self.backend, imu_sample(f.pose_stamp_ns, frame_id, quat=q, accel=acc))
+                         for q, acc in zip(quats, f.free_acc)]
+                self._latency.add(time.monotonic() - received)  # before the publication (see segmentation_node)
+                for pub, bone in zip(self._bone_pubs, bones):
+                    pub.publish(bone)
                 self._held += bool(f.reason)
                 self._last_sync = f.reason or "all DOTs interpolated"
             elif f.outcome == Outcome.CALIBRATING:

@@ -44,7 +44,7 @@ from lip_ros.lip.sensors import IMU_NAMES, LIP_TOPICS
 from lip_ros.lip.stages import Outcome, PoseStage
 from lip_ros.lip.surface_fit import SURFACE_FIT
 from lip_ros.nodes.base import (
-    BETWEEN_NODES,
+    DIRECT_INPUTS_PARAM,
     RELIABLE,
     FrameArrivals,
     GraphNode,
@@ -79,6 +79,7 @@ class PoseNode(GraphNode):
     PARAMS = {
         "performer_topic": Param("input: the performer's points of segmentation_node"),
         "bone_topics": CalibrationNode.PARAMS["bone_topics"],
+        "direct_inputs": DIRECT_INPUTS_PARAM,
         "weights": Param("LIP weights <path>.pt + <path>.json ('' = the shipped ones)"),
         "surface_fit": Param("fit the translation and the performer's shape to the points (false: the network's "
                              "translation; docs/lip/transfer.md)"),
@@ -118,10 +119,10 @@ class PoseNode(GraphNode):
         self._tf_pub = tf_publisher(self) if p["publish_tf"] or body else None
         subscribe_ground(self, p["ground_topic"], self._on_ground)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
-                       lambda msg: self._on_input(_POINTS, msg), BETWEEN_NODES)
+                       lambda msg: self._on_input(_POINTS, msg), from_graph=True)
         for name, topic in zip(IMU_NAMES, p["bone_topics"]):
             self.add_input(f"bone {name}", topic, Imu, p["lidar_rate_hz"],
-                           lambda msg, name=name: self._on_input(name, msg), BETWEEN_NODES)
+                           lambda msg, name=name: self._on_input(name, msg), from_graph=True)
         self.get_logger().info(f"ready; weights {p['weights'] or '(shipped)'}")
 
     def _on_ground(self, level: np.ndarray) -> None:

@@ -27,7 +27,6 @@ from sensor_msgs.msg import PointCloud2
 from lip_msgs_py import DiagnosticLevel, MalformedMessageError, cloud_to_array, read_header, xyz_to_cloud
 from lip_ros.lip.segmentation import LOCK_RULES, PerformerSegmenter, SegmentationConfig, SegmentationStatus
 from lip_ros.nodes.base import (
-    BETWEEN_NODES,
     LATCHED,
     FrameArrivals,
     GraphNode,
@@ -82,7 +81,7 @@ class SegmentationNode(GraphNode):
         self._arrivals = arrivals
         self._latency = LatencyWindow()
         self._last_status = "no frame yet"
-        self._pub = self.create_publisher(PointCloud2, p["performer_topic"], BETWEEN_NODES)
+        self._pub = self.create_between_publisher(PointCloud2, p["performer_topic"])
         self._ground_pub = self.create_publisher(PoseStamped, p["ground_topic"], LATCHED)
         self._ground_sent = False
         self.add_input(p["lidar_name"], p["lidar_topic"], PointCloud2, p["lidar_rate_hz"], self._on_cloud,
@@ -114,8 +113,8 @@ class SegmentationNode(GraphNode):
             return stamp_ns
         if self._arrivals is not None:
             self._arrivals.mark(seg.pose_stamp_ns, received)
+        self._latency.add(time.monotonic() - received)  # before publishing, which runs the rest of a composed graph
         self._pub.publish(xyz_to_cloud(self.backend, seg.points, seg.pose_stamp_ns, frame_id))
-        self._latency.add(time.monotonic() - received)
         if self._performer_file is not None and received - self._saved_at >= 1.0:
             self._save_position(seg.position, seg.pose_stamp_ns)
             self._saved_at = received
