@@ -5,7 +5,8 @@ an executable of its own, to split the graph over processes or machines) in
 one process, each node on its own thread with a single-threaded executor (and
 one mutually exclusive callback group). Between them the performer's points and
 the bones go by direct calls (:class:`lip_ros.nodes.base.LocalTopics`; still
-published over DDS for recorders and tools): a frame runs from the cloud's
+published over DDS for recorders and tools; ``direct_inputs:=false`` takes them
+through DDS instead, the stages overlapping on consecutive frames): a frame runs from the cloud's
 callback to its pose outputs on one thread, without a wake-up between the
 stages, while the DOTs' samples are taken on the calibration node's thread
 (each node's callbacks serialised by its own lock). Parameters come from the shipped
