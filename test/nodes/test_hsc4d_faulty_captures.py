@@ -166,10 +166,10 @@ def test_a_capture_played_again_is_tracked_again_from_its_jump(runs) -> None:
     body_back = np.flatnonzero(np.diff([p.stamp_ns for p in poses]) < -STEP_NS)
     assert len(body_back) == 1
     joints = {p.stamp_ns: p.positions for p in poses[body_back[0] + 1:]}
-    # a new trajectory from the new capture's jump: measured 0-1.0 cm (median) from the clean run in 8 runs of 11,
-    # 4.9 cm (at most 25 cm) in 3, the same figures each time (the cause not found; docs/reliability.md)
-    _assert_near_the_clean_run(stamps[second], positions[second], joints, runs["clean"][1], median_m=0.06,
-                               max_m=0.30)
+    # a new trajectory from the new capture's jump, as the clean run's: measured 0.00 cm (median and largest) in
+    # three runs with another process busy on a core; before the trajectory node took the suit's odometry ahead of
+    # its pelvis samples, 0.6-1.0 cm, and 4.9 cm (at most 25 cm) in 5 runs of 14 (docs/reliability.md)
+    _assert_near_the_clean_run(stamps[second], positions[second], joints, runs["clean"][1])
     clean = dict(zip(*(a.tolist() for a in _poses(runs["clean"][1]))))
     apart = np.linalg.norm(positions[first] - np.array([clean[int(t)] for t in stamps[first]]), axis=1)
     assert np.median(apart) < 0.02 and apart.max() < 0.10, (np.median(apart), apart.max())
