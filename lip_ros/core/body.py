@@ -74,11 +74,17 @@ def _closest_on_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarr
     return a + s[..., None] * ab
 
 
+def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rowwise dot products of (..., 3) arrays: ``np.sum(u * v, axis=-1)`` bit for bit (the same order of the
+    additions; einsum's differs in the last bit), in less time."""
+    return u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1] + u[..., 2] * v[..., 2]
+
+
 def _sphere_hit(origin: np.ndarray, dirs: np.ndarray, centre: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """Entry distance of unit rays into spheres (rowwise), inf if missed or behind."""
     oc = origin - centre
-    b = np.sum(dirs * oc, axis=-1)
-    h = b * b - (np.sum(oc * oc, axis=-1) - radius * radius)
+    b = _dot(dirs, oc)
+    h = b * b - (_dot(oc, oc) - radius * radius)
     with np.errstate(invalid="ignore"):
         t = -b - np.sqrt(h)
     return np.where((h >= 0.0) & (t > 0.0), t, np.inf)
@@ -91,12 +97,12 @@ def _capsule_hit(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndar
     """
     ba = b - a
     oa = origin - a
-    baba = np.sum(ba * ba, axis=-1)
-    bard = np.sum(ba * dirs, axis=-1)
-    baoa = np.sum(ba * oa, axis=-1)
+    baba = _dot(ba, ba)
+    bard = _dot(ba, dirs)
+    baoa = _dot(ba, oa)
     qa = baba - bard * bard
-    qb = baba * np.sum(dirs * oa, axis=-1) - baoa * bard
-    qc = baba * np.sum(oa * oa, axis=-1) - baoa * baoa - r * r * baba
+    qb = baba * _dot(dirs, oa) - baoa * bard
+    qc = baba * _dot(oa, oa) - baoa * baoa - r * r * baba
     h = qb * qb - qa * qc
     with np.errstate(invalid="ignore", divide="ignore"):
         t = (-qb - np.sqrt(h)) / qa

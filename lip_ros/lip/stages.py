@@ -28,10 +28,11 @@ import enum
 import itertools
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import wraps
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -114,11 +115,28 @@ class _Waiting:
     tag: Any
 
 
+_Method = TypeVar("_Method", bound=Callable[..., Any])
+
+
+def _scored_first(method: _Method) -> _Method:
+    """An :class:`ImuStage` method that first scores the frames that came out before it (their DOT latency)."""
+    @wraps(method)
+    def scored_first(self: ImuStage, *args: Any, **kwargs: Any) -> Any:
+        self.score_latency()
+        return method(self, *args, **kwargs)
+    return scored_first  # type: ignore[return-value]
+
+
 class ImuStage:
     """IMU synchronisation and A/T-pose calibration for the performer frames, in their order.
 
     ``calibration_file``: loaded at start if it exists, written whenever a
     calibration is solved, removed by :meth:`reset`.
+
+    The online DOT latency estimate scores each frame after its bones came out:
+    that work waits until :meth:`score_latency`, which every method that takes
+    data or frames calls first, so a caller can publish a frame's bones before
+    it (off the frame's latency) and the results stay the same either way.
     """
 
     def __init__(
@@ -155,6 +173,8 @@ class ImuStage:
         self._pending: deque[_Waiting] = deque()
         self._last_pose_ns: int | None = None  # pose time of the newest frame
         self.clock_steps = 0  # how often the frames' stamps stepped back (lip_ros.core.clock)
+        self._unscored: list[tuple[int, np.ndarray]] = []  # frames out, not yet scored for the DOT latency (pose
+        #                                                    time, points in P): one, or a few of one poll
         if calibration is None:
             self.start_calibration()
 
@@ -211,11 +231,13 @@ class ImuStage:
             parts.append(("recalibrating: " if self.calibration is not None else "") + self._detector.status)
         return "; ".join(parts)
 
+    @_scored_first
     def start_calibration(self) -> None:
         """Look for a new A-pose / T-pose from now on; a current calibration stays in use until it is solved."""
         self._detector = CalibrationDetector(self.skeleton, self._calibration_config)
         self._calibration_samples = deque(maxlen=len(IMU_NAMES) * self._detector.max_buffered)
 
+    @_scored_first
     def reset(self) -> None:
         """Forget the calibration (and remove its file, so a restart does not resume it) and look for a new one."""
         self.calibration = None
@@ -224,10 +246,12 @@ class ImuStage:
             self.calibration_file.unlink(missing_ok=True)
         self.start_calibration()
 
+    @_scored_first
     def add_imu(self, name: str, sample: ImuSampleLike) -> str | None:
         """One DOT sample (R_I_S, rate and specific force in S); why it was rejected, None if kept."""
         return self._keep(name, sample, self.sync.add(name, sample))
 
+    @_scored_first
     def add_imus(self, names: Sequence[str], samples: Sequence[ImuSampleLike]
                  ) -> tuple[list[str | None], list[BoneFrame]]:
         """Samples in arrival order, each as :meth:`add_imu` followed by :meth:`poll` (the same results), validated
@@ -252,6 +276,7 @@ class ImuStage:
                 samples.popleft()
         return reason
 
+    @_scored_first
     def add_frame(self, frame_stamp_ns: int, pose_stamp_ns: int, points: np.ndarray, tag: Any = None
                   ) -> list[BoneFrame]:
         """Queue a frame with the performer's points (N, 3) in L; frames that cannot wait any longer come back now."""
@@ -276,6 +301,7 @@ class ImuStage:
             self.start_calibration()
         return done
 
+    @_scored_first
     def add_unusable(self, frame_stamp_ns: int, reason: str, tag: Any = None) -> list[BoneFrame]:
         """Queue a frame without a performer, so that it comes out (SKIPPED) in order with the others."""
         return self._enqueue(_Waiting(frame_stamp_ns, None, None, reason, tag))
@@ -286,6 +312,7 @@ class ImuStage:
         newest = [t for t in map(self.sync.newest_ns, self.sync.names) if t is not None]
         return max(newest) if newest else None
 
+    @_scored_first
     def poll(self, now_ns: int | None = None) -> list[BoneFrame]:
         """The waiting frames whose IMU data is complete, or waited for long enough, in order.
 
@@ -302,15 +329,28 @@ class ImuStage:
         if now_ns is None:
             return []
         done = []
-        while self._pending and self._ready(self._pending[0], now_ns):
+        while self._pending:
+            self.score_latency()  # the frame before may set a latency that this frame's readiness depends on
+            if not self._ready(self._pending[0], now_ns):
+                break
             done.append(self._process(self._pending.popleft()))
         return done
 
+    @_scored_first
     def flush(self) -> list[BoneFrame]:
-        """Every waiting frame (end of a bag)."""
-        done = [self._process(w) for w in self._pending]
-        self._pending.clear()
+        """Every waiting frame (end of a bag), all scored."""
+        done = []
+        while self._pending:
+            done.append(self._process(self._pending.popleft()))
+            self.score_latency()
         return done
+
+    def score_latency(self) -> None:
+        """Score the frames that came out since the last call for the DOT latency estimate, and take each new
+        estimate off its DOT's stamps (nothing without the estimate)."""
+        for t_ns, points in self._unscored:
+            self._estimate_latency(t_ns, points)
+        self._unscored.clear()
 
     def _enqueue(self, waiting: _Waiting) -> list[BoneFrame]:
         self._pending.append(waiting)
@@ -373,7 +413,7 @@ class ImuStage:
             self._try_calibrate(t)
         out = self._bones(w, t)
         if self.latency is not None and w.points is not None:  # after this frame's bones: it used the data as is
-            self._estimate_latency(t, w.points if self.level is None else w.points @ self.level)
+            self._unscored.append((t, w.points if self.level is None else w.points @ self.level))
         return dataclasses.replace(out, seconds=time.perf_counter() - start)
 
     def _bones(self, w: _Waiting, t: int) -> BoneFrame:

@@ -162,15 +162,13 @@ class SurfaceFitter:
             # where each ray meets the body (root-relative); rays that miss it: the point itself
             hit_range, met = first_hits(-t, ray, a, a + ab, radius)
             hit = met >= 0
-            p = np.where(hit[:, None], ray * np.where(hit, hit_range, 0.0)[:, None], points) - t
-            s = np.clip(np.einsum("nkj,kj->nk", p[:, None, :] - a[None], ab)
-                        / np.maximum(np.einsum("kj,kj->k", ab, ab), 1e-18), 0.0, 1.0)
-            diff = p[:, None, :] - (a[None] + s[..., None] * ab[None])
-            axis_dist = np.sqrt(np.einsum("nkj,nkj->nk", diff, diff))
             miss = ~hit
-            k = np.where(hit, met, np.argmin(axis_dist - radius, axis=1))  # the capsule met, or the nearest
-            dist = axis_dist[rows, k]
-            normal = diff[rows, k] / np.maximum(dist, 1e-9)[:, None]
+            p = np.where(hit[:, None], ray * np.where(hit, hit_range, 0.0)[:, None], points) - t
+            k = met.copy()  # the capsule met, or (a miss) the nearest
+            k[miss] = np.argmin(_axis_distances(p[miss], a, ab) - radius, axis=1)
+            s, diff = _nearest_on_axes(p, a[k], ab[k])
+            dist = np.sqrt(np.einsum("nj,nj->n", diff, diff))
+            normal = diff / np.maximum(dist, 1e-9)[:, None]
             # hit: the range error, times the cosine of the incidence (along the normal, as the Jacobian below);
             # miss: the point's distance to the body (positive: outside)
             res = np.where(hit, np.maximum(-np.einsum("nj,nj->n", normal, ray), _MIN_COS) * (hit_range - ranges),
@@ -182,8 +180,7 @@ class SurfaceFitter:
             jac[:, 3:3 + _GIRTHS] = 0.0
             jac[rows, 3 + self._group[k]] = -r0[k]
             # a longer bone group moves the axis point nearest the point by dq; the distance changes by -n.dq
-            sk = s[rows, k][None, :, None]
-            dq = da[:, k] + sk * (db[:, k] - da[:, k])  # (G, N, 3)
+            dq = da[:, k] + s[None, :, None] * (db[:, k] - da[:, k])  # (G, N, 3)
             jac[:, 3 + _GIRTHS:] = -np.einsum("gnj,nj->ng", dq, normal)
             H = jac.T @ (weight[:, None] * jac)
             rhs = -jac.T @ (weight * res)
@@ -201,6 +198,20 @@ class SurfaceFitter:
         self._info = info + H_ss  # the frame's solution is the new estimate (an information filter's update)
         self._shape = shape
         return SurfaceFit(t, self.shape, float(np.median(np.abs(res))), True)
+
+
+def _nearest_on_axes(p: np.ndarray, a: np.ndarray, ab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where on each segment ``a`` to ``a + ab`` the point ``p`` is nearest (fraction s, all (..., 3) broadcast)
+    and the point's offset from there."""
+    s = np.clip(np.einsum("...j,...j->...", p - a, ab) / np.maximum(np.einsum("...j,...j->...", ab, ab), 1e-18),
+                0.0, 1.0)
+    return s, p - (a + s[..., None] * ab)
+
+
+def _axis_distances(p: np.ndarray, a: np.ndarray, ab: np.ndarray) -> np.ndarray:
+    """(N, K) distance of each point (N, 3) to each capsule's axis (K segments ``a`` to ``a + ab``)."""
+    _, diff = _nearest_on_axes(p[:, None, :], a[None], ab[None])
+    return np.sqrt(np.einsum("nkj,nkj->nk", diff, diff))
 
 
 def _clip_norm(v: np.ndarray, limit: float) -> np.ndarray:

@@ -65,6 +65,35 @@ def test_imu_stage_resumes_recalibrates_and_resets(calibrated_file, tmp_path):
     assert ImuStage(calibration_file=file).calibrating  # a restart after a reset does not resume
 
 
+def test_a_frame_is_scored_for_the_dot_latency_after_its_bones_came_out(calibrated_file, tmp_path):
+    """The latency estimate's work on a frame waits until the stage is called again (or score_latency), so that
+    a node can publish the frame's bones first; the next call scores it before anything else."""
+    file = tmp_path / "cal.yaml"
+    file.write_bytes(calibrated_file.read_bytes())
+    stage = ImuStage(calibration_file=file)
+    scored = []
+    observe = stage.latency.observe
+    stage.latency.observe = lambda t_ns, points: (scored.append(t_ns), observe(t_ns, points))
+    samples = [((k + 1) * 10_000_000, n) for k in range(100) for n in IMU_NAMES]  # 1 s of the four DOTs, 100 Hz
+
+    def add(stamp_ns, name):
+        assert stage.add_imu(name, imu_sample(stamp_ns, name, [0.0, 0.0, 0.0, 1.0], [0.0] * 3, [0.0, 0.0, 9.81])) \
+            is None
+
+    for stamp, name in samples[:200]:
+        add(stamp, name)
+    assert stage.add_frame(300_000_000, 300_000_000, np.ones((50, 3))) == []
+    out = stage.poll()
+    assert [f.outcome.value for f in out] == ["pose"] and scored == []  # out, not yet scored
+    add(*samples[200])
+    assert scored == [300_000_000]  # the next call scored it first
+    stage.add_frame(400_000_000, 400_000_000, np.ones((50, 3)))
+    assert [f.outcome.value for f in stage.poll()] == ["pose"] and scored == [300_000_000]
+    stage.score_latency()
+    stage.score_latency()
+    assert scored == [300_000_000, 400_000_000]  # once each
+
+
 def test_pose_stage_starts_a_new_sequence_after_a_gap():
     torch_model = LipModel(LipNet(LipConfig.tiny()))
     stage = PoseStage(torch_model, max_gap_ns=1_000_000_000)

@@ -131,14 +131,16 @@ def _measured_bones(rot: np.ndarray, imu_rot: np.ndarray, tolerance_deg: float) 
     glob, _ = forward_kinematics(skeleton, rot)
     rot = rot.copy()
     limit = np.radians(tolerance_deg)
-    for i, name in enumerate(IMU_NAMES):
-        j = skeleton.index(skeleton.lip_imus[name]["bone_joint"])
-        ok = np.isfinite(imu_rot[:, i]).all(axis=(-2, -1))
-        measured = imu_rot[ok, i]
-        away = matrix_to_axis_angle(np.swapaxes(measured, -1, -2) @ glob[ok, j])  # network's bone in the measured
-        angle = np.linalg.norm(away, axis=-1, keepdims=True)
-        target = measured @ axis_angle_to_matrix(away * np.minimum(1.0, limit / np.maximum(angle, 1e-12)))
-        rot[ok, j] = np.swapaxes(glob[ok, skeleton.parents[j]], -1, -2) @ target
+    # all four bones at once (none is another's ancestor, so each one's parent is the network's)
+    bones = np.array([skeleton.index(skeleton.lip_imus[name]["bone_joint"]) for name in IMU_NAMES])
+    ok = np.isfinite(imu_rot).all(axis=(-2, -1))  # (T, 4)
+    measured = imu_rot[ok]
+    away = matrix_to_axis_angle(np.swapaxes(measured, -1, -2) @ glob[:, bones][ok])  # network's bone in the measured
+    angle = np.linalg.norm(away, axis=-1, keepdims=True)
+    target = measured @ axis_angle_to_matrix(away * np.minimum(1.0, limit / np.maximum(angle, 1e-12)))
+    measured_bones = rot[:, bones]
+    measured_bones[ok] = np.swapaxes(glob[:, skeleton.parents[bones]][ok], -1, -2) @ target
+    rot[:, bones] = measured_bones
     return rot
 
 

@@ -187,6 +187,7 @@ class CalibrationNode(GraphNode):
                 self._last_sync = f.reason
                 if f.reason.startswith(CLOCKS_REASON):
                     self.get_logger().error(f.reason, throttle_duration_sec=5.0)
+        self.stage.score_latency()  # the DOT latency estimate's work, after the bones are out
         steps = self.stage.clock_steps + sum(self.stage.sync.clock_steps.values())
         if steps > self._clock_steps:
             self._clock_steps = steps

@@ -39,6 +39,7 @@ from lip_msgs_py import (
 )
 from lip_ros.core.exact_sync import ExactTimeJoiner, Incomplete
 from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
+from lip_ros.core.torch_runtime import set_threads
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.sensors import IMU_NAMES, LIP_TOPICS
 from lip_ros.lip.stages import Outcome, PoseStage
@@ -91,11 +92,14 @@ class PoseNode(GraphNode):
         "ground_topic": GROUND_PARAM,
         "max_pose_gap_s": Param("after this long without a pose the network starts a new sequence", positive),
         "join_max_stamps": Param("stamps that may wait for the rest of their inputs", positive),
+        "torch_threads": Param("torch's CPU threads for the network (process-wide; 1: no waiting on a core another "
+                               "process holds, docs/lip/graph.md)", positive),
     }
 
     def __init__(self, arrivals: FrameArrivals | None = None, **kwargs: Any) -> None:
         super().__init__(self.NAME, **kwargs)
         p = self.params
+        set_threads(p["torch_threads"])
         try:
             model = LipModel.load(Path(p["weights"]).expanduser() if p["weights"] else None,
                                   surface_fit=SURFACE_FIT if p["surface_fit"] else None)
