@@ -152,6 +152,10 @@ class JumpSync:
             return "waiting for the jump (in the suit's data)"
         return "jump seen by the suit, waiting for the LiDAR to see it"
 
+    def set_offset(self, offset_ns: int) -> None:
+        """Take the suit's clock offset as known without a jump (a resumed trajectory)."""
+        self.offset_ns = int(offset_ns)
+
     def add_suit(self, stamp_ns: int, specific_force: np.ndarray) -> None:
         """One pelvis IMU sample (specific force (3,) in any frame)."""
         if self.offset_ns is not None:

@@ -211,6 +211,20 @@ class LidarOdometry:
         self._registered_ns: int | None = None  # of the last sweep registered ...
         self._registered_pose = np.eye(4)  # ... and its pose
         self.gravity: np.ndarray | None = None  #: gravity's up in O, once known
+        self._start_gap_s = 0.0  # how long the first sweep's pose was predicted for (start_at)
+
+    def start_at(self, T_O_L: np.ndarray, map_points: np.ndarray, gap_s: float) -> None:
+        """Start from a map and a predicted pose (a trajectory resumed): the local map seeded with ``map_points``
+        (M, 3) in O, the first sweep registered from ``T_O_L`` (4, 4), a pose predicted over ``gap_s`` seconds
+        without the LiDAR, and believed if the registration moved it no farther than a gap that long in the
+        stamps allows. Only before the first sweep (ValueError after)."""
+        if self._stamp_ns is not None:
+            raise ValueError("the odometry has registered sweeps already")
+        self.pose = np.array(T_O_L, dtype=np.float64)
+        points = np.asarray(map_points, dtype=np.float64).reshape(-1, 3)
+        if len(points):
+            self._map.add_points(points)
+        self._start_gap_s = float(gap_s)
 
     def set_gravity(self, up: np.ndarray) -> None:
         """Gravity's up (3,) in the odometry frame O: from now on each pose's tilt is pulled toward the suit's."""
@@ -290,7 +304,8 @@ class LidarOdometry:
         deviation = np.linalg.inv(guess) @ pose
         correction_m = float(np.linalg.norm(deviation[:3, 3]))
         rejected = ""
-        max_correction_m = c.max_correction_m + _GAP_DRIFT_MPS * max(0.0, dt - _MAX_EXTRAPOLATION_S)
+        gap_s = dt if self._stamp_ns is not None else self._start_gap_s
+        max_correction_m = c.max_correction_m + _GAP_DRIFT_MPS * max(0.0, gap_s - _MAX_EXTRAPOLATION_S)
         if correction_m > max_correction_m:
             rejected = f"correction {correction_m:.2f} m > {max_correction_m:.2f} m"
         elif suit_motion is not None:  # the motion since the last registered sweep (the last, without a cap)

@@ -62,6 +62,7 @@ from lip_ros.hsc4d.mount import (
 )
 from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
 from lip_ros.hsc4d.pose_graph import LiveTrajectoryGraph, PoseGraphConfig, fuse_batch
+from lip_ros.hsc4d.resume import TrajectoryResume
 from lip_ros.hsc4d.sensors import SUIT_RATE_HZ
 from lip_ros.hsc4d.site_map import SiteMap, SiteMapConfig
 from lip_ros.hsc4d.suit_track import SuitTrack
@@ -196,6 +197,8 @@ class TrajectoryPipeline:
         self._pending: deque[_Registered] = deque()  # registered before the map frame was fixed
         self._first: _Registered | None = None
         self._last_ns: int | None = None
+        self._last_out: tuple[int, np.ndarray] | None = None  # the last output's stamp and fused T_map_P
+        self._resume: TrajectoryResume | None = None  # to start from at the first sweep
         self._T_M_L, self._T_L_M = c.mount.T_M_L, c.mount.T_L_M
         records = int(c.record_s * 20.0)  # at up to 20 Hz
         self._landmarks: deque[np.ndarray | None] = deque(maxlen=records)  # T_O_L (the mounting applied in refine())
@@ -273,6 +276,50 @@ class TrajectoryPipeline:
         """(M, 3) float32 the site map in ``map`` (the outputs put in it so far); None while it is empty."""
         return self.site.points() if self.site.size else None
 
+    def resume_state(self) -> TrajectoryResume | None:
+        """What a new pipeline needs to go on from the last output without another jump
+        (:meth:`resume`); None before the first output, or without the suit's pose at it."""
+        if self._last_out is None or self.map_frame is None:
+            return None
+        stamp_ns, T_map_P = self._last_out
+        T_I_P = self.suit.pelvis(stamp_ns)
+        if T_I_P is None:
+            return None
+        T = self.map_frame.T_map_O
+        return TrajectoryResume(stamp_ns, int(self.offset_ns), self._T_M_L, T_map_P, T_I_P, self.stride_scale.value,
+                                self.map_frame.pelvis_height_m, self.mount_levelled_deg, self.mount_yaw_deg,
+                                self.odometry.map_points() @ T[:3, :3].T + T[:3, 3])
+
+    def resume(self, state: TrajectoryResume) -> None:
+        """Go on from ``state`` (:meth:`resume_state` of this capture's trajectory before its process stopped)
+        instead of waiting for the jump: its clock offset, mounting and stride scale from now on, and the first
+        sweep placed where the suit's motion since ``state``'s pose puts the pelvis, in the same ``map`` frame.
+        Only before the first sweep (ValueError after)."""
+        if self._last_ns is not None:
+            raise ValueError("a trajectory resumes before its first sweep")
+        self.jump.set_offset(state.offset_ns)
+        self.rotation.set_offset(state.offset_ns)
+        self.suit.set_offset(state.offset_ns)
+        self._set_mount(state.T_M_L)
+        self.lever = LeverArmEstimator(tuple(state.T_M_L[:3, 3]))  # the estimate goes on from the lever in use
+        self.stride_scale.value = state.stride_scale
+        self.mount_levelled_deg, self.mount_yaw_deg = state.mount_levelled_deg, state.mount_yaw_deg
+        self._resume = state
+
+    def _start_from(self, state: TrajectoryResume, ref: int) -> None:
+        """The first sweep of a resumed trajectory, at ``ref``: the odometry starts on ``state``'s local map, from
+        its pelvis pose moved by the suit's motion since (its horizontal part by the stride scale), in ``map``."""
+        T_I_P = self.suit.pelvis(ref)
+        motion = np.eye(4)
+        if T_I_P is None:
+            self.counts["resumed without the suit's pose at the first sweep"] += 1
+        else:
+            motion = np.linalg.inv(state.T_I_P) @ T_I_P
+            motion[[0, 2], 3] *= state.stride_scale  # the pelvis frame's horizontal axes, as the graph's factors
+        self.odometry.start_at(state.T_map_P @ motion @ self._T_M_L, state.map_points, (ref - state.stamp_ns) * 1e-9)
+        self.odometry.set_gravity(np.array([0.0, 0.0, 1.0]))  # O is map
+        self.map_frame = MapFrame(np.eye(4), "resumed", float("nan"), state.pelvis_height_m)
+
     def add_pelvis_imu(self, sample: ImuSampleLike) -> str | None:
         """One sample of the suit's pelvis IMU (suit clock); why it was rejected, None if kept."""
         reason = self.rotation.add(sample)
@@ -343,6 +390,9 @@ class TrajectoryPipeline:
     def _register(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> list[TrajectoryStep]:
         """Register and fuse one sweep; the steps that became ready."""
         ref = (int(point_ns.min()) + int(point_ns.max())) // 2 if point_ns.size else stamp_ns
+        if self._resume is not None:
+            self._start_from(self._resume, ref)
+            self._resume = None
         previous_pose, previous_ns = self.odometry.pose, (self._stamps[-1] if self._stamps else None)
         anchor = self.odometry.last_registered  # the LiDAR's own motion is measured from there
         step = self.odometry.register(points, point_ns, ref, self.rotation, self.suit, self.rotation.vertical_shift)
@@ -378,6 +428,7 @@ class TrajectoryPipeline:
         out = [TrajectoryStep(r.stamp_ns, T @ r.fused_T_O_P, T @ r.T_O_L, T @ r.T_O_P, r.rejected, r.correction_m,
                               r.source_points, r.sweep_ns, r.points) for r in self._pending]
         self._pending.clear()
+        self._last_out = out[-1].stamp_ns, out[-1].pelvis
         return out
 
     def _fix_map_frame(self, ref: int) -> bool:
