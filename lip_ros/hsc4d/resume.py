@@ -31,7 +31,7 @@ from typing import Any, BinaryIO
 import numpy as np
 import yaml
 
-__all__ = ["TrajectoryResume", "save_resume", "load_resume", "map_file"]
+__all__ = ["TrajectoryResume", "save_resume", "load_resume", "map_file", "resume_refusal"]
 
 _KIND = "lip_ros hsc4d trajectory resume"
 _VERSION = 1
@@ -86,6 +86,15 @@ class TrajectoryResume:
                    **{k: float(doc[k]) for k in ("stride_scale", "pelvis_height_m", "mount_levelled_deg",
                                                  "mount_yaw_deg")},
                    map_points=map_points)
+
+
+def resume_refusal(state: TrajectoryResume, first_ns: int, max_gap_s: float) -> str | None:
+    """Why a graph whose first sweep (or fused pose) is stamped ``first_ns`` does not go on from ``state``: it is
+    more than ``max_gap_s`` older, or not older (another capture, another clock); None if it does."""
+    gap_s = (first_ns - state.stamp_ns) * 1e-9
+    if 0.0 < gap_s <= max_gap_s:
+        return None
+    return f"the saved state is {gap_s:+.1f} s from the first sweep (it must be 0-{max_gap_s:g} s before it)"
 
 
 def _check_kind(doc: Any) -> None:

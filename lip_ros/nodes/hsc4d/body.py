@@ -57,6 +57,7 @@ from __future__ import annotations
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -79,6 +80,7 @@ from lip_ros.core.clock import SteppingClock, stepped_back
 from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_runtime import set_threads
+from lip_ros.hsc4d.resume import TrajectoryResume, load_resume, resume_refusal
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
 from lip_ros.hsc4d.suit_body import FEET, BodyPose, SuitBody, SuitBodyConfig, bent_legs, leg_chains, moved_body
@@ -152,6 +154,9 @@ class BodyNode(GraphNode):
         "optimise_flush_s": Param("a partial window is optimised once no fused pose came for this long", positive),
         "optimise_threads": Param("torch's CPU threads for the optimisation (1: the other core stays the trajectory "
                                   "node's)", positive),
+        "resume_file": Param("hsc4d_trajectory_node's state (read at start): with body_scale 0, a graph started "
+                             "again mid-capture scales the body to the standing pelvis height in it ('' = off)"),
+        "resume_max_gap_s": TrajectoryNode.PARAMS["resume_max_gap_s"],
     }
 
     def __init__(self, **kwargs: Any) -> None:
@@ -165,6 +170,13 @@ class BodyNode(GraphNode):
         except ValueError as exc:
             raise ParameterError(str(exc)) from exc
         self._scale_from_height = p["body_scale"] == 0
+        self._resumed: TrajectoryResume | None = None  # the trajectory's state at start, until the first pose
+        resume = Path(p["resume_file"]).expanduser() if p["resume_file"] else None
+        if resume is not None and resume.exists() and self._scale_from_height:
+            try:
+                self._resumed = load_resume(resume)
+            except (OSError, ValueError) as exc:
+                raise ParameterError(f"resume_file: {exc}") from exc
         self._offset_ns: int | None = None
         self._waiting: deque[_FusedPose] = deque()
         self._lidar_clock, self._suit_clock = SteppingClock(), SteppingClock()  # time lines across clock steps
@@ -439,12 +451,16 @@ class BodyNode(GraphNode):
             return
         if self._scale_from_height:
             self._scale_from_height = False
+            height, where = float(T_map_P[2, 3]), "the first fused pose's"
+            resumed, self._resumed = self._resumed, None
+            if resumed is not None and resume_refusal(resumed, stamp_ns, self.params["resume_max_gap_s"]) is None:
+                height, where = resumed.pelvis_height_m, "the capture's start's (resume_file)"
             try:
-                scale = self.body.scale_to_pelvis_height(float(T_map_P[2, 3]))
+                scale = self.body.scale_to_pelvis_height(height)
             except ValueError as exc:
                 self.get_logger().warning(f"body left at the contract's size: {exc}")
             else:
-                self.get_logger().info(f"body scaled to the standing pelvis height {T_map_P[2, 3]:.3f} m: "
+                self.get_logger().info(f"body scaled to {where} standing pelvis height {height:.3f} m: "
                                        f"{scale:.3f} x the contract skeleton")
         self._decode()
         pose, reason = self.body.pose(fused.line_ns + self._offset_ns, T_map_P)

@@ -43,6 +43,7 @@ from __future__ import annotations
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -67,6 +68,7 @@ from lip_ros.core.clock import SteppingClock, stepped_back
 from lip_ros.core.rotations import matrix_to_axis_angle, matrix_to_quat
 from lip_ros.hsc4d.lidar_odometry import OdometryConfig
 from lip_ros.hsc4d.mount import HipMountPrior
+from lip_ros.hsc4d.resume import TrajectoryResume, load_resume, resume_refusal, save_resume
 from lip_ros.hsc4d.suit_restart import SuitRestart
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 from lip_ros.nodes.base import (
@@ -160,6 +162,12 @@ class TrajectoryNode(GraphNode):
                              non_negative),
         "max_registration_hz": Param("sweeps are registered at most this often, the others posed by the suit's "
                                      "motion (0: every sweep)", non_negative),
+        "resume_file": Param("the trajectory's state, written every resume_period_s (YAML, its local map beside it "
+                             "as <file>.map.npy); read at start: a restart goes on from it without a jump, and "
+                             "hsc4d_body_node takes the standing pelvis height from it ('' = off)"),
+        "resume_period_s": Param("the state is written this often (steady time)", positive),
+        "resume_max_gap_s": Param("a state this much older than the first sweep (or newer) is not resumed from",
+                                  positive),
     }
 
     def __init__(self, **kwargs: Any) -> None:
@@ -173,6 +181,17 @@ class TrajectoryNode(GraphNode):
         except ValueError as exc:
             raise ParameterError(str(exc)) from exc
         self.pipeline = TrajectoryPipeline(self._config)
+        self._resume_file = Path(p["resume_file"]).expanduser() if p["resume_file"] else None
+        self._resume: TrajectoryResume | None = None  # read at start, until the first sweep decides
+        self._resume_status = "off" if self._resume_file is None else "no saved state at start"
+        self._resume_writes = "none yet"  # how the writing of the state goes
+        if self._resume_file is not None and self._resume_file.exists():
+            try:
+                self._resume = load_resume(self._resume_file)
+            except (OSError, ValueError) as exc:
+                raise ParameterError(f"resume_file: {exc}") from exc
+            self._resume_status = "state read, waiting for the first sweep"
+        self._resumed_ns: int | None = None  # the stamp of the state last written
         self._waiting: deque[_Sweep] = deque()
         self._suit_ns = {"imu": None, "odometry": None}  # newest accepted suit stamps
         self._dropped: Counter[str] = Counter()  # of the pipeline's drops, those already counted as frames
@@ -204,7 +223,10 @@ class TrajectoryNode(GraphNode):
         self.add_input(_SUIT_INPUTS[1], p["pelvis_imu_topic"], Imu, p["suit_rate_hz"], self._on_pelvis, suit)
         self.create_timer(0.02, self._drain, self.group, clock=self.steady)
         self.create_timer(p["map_period_s"], self._publish_map, self.group, clock=self.steady)
-        self.get_logger().info("ready; waiting for the performer's jump to sync the suit's clock")
+        if self._resume_file is not None:
+            self.create_timer(p["resume_period_s"], self._save_resume, self.group, clock=self.steady)
+        self.get_logger().info("ready; " + ("going on from the saved trajectory at the first sweep" if self._resume
+                                            else "waiting for the performer's jump to sync the suit's clock"))
 
     def _on_cloud(self, msg: PointCloud2) -> int:
         received = self._last_received = time.monotonic()
@@ -225,6 +247,9 @@ class TrajectoryNode(GraphNode):
             self.count_frame(_BEGAN_AGAIN, f"{stamp_ns}: {exc}")
             raise
         point_ns = line_ns + t.astype(np.int64)
+        if self._resume is not None:
+            self._resume_from(self._resume, line_ns)
+            self._resume = None
         self._waiting.append(_Sweep(line_ns, points.astype(np.float64), point_ns, received, int(point_ns.max()),
                                     stamp_ns))
         self._take_suit()
@@ -256,6 +281,37 @@ class TrajectoryNode(GraphNode):
         self._suit_ns["odometry"] = max(line_ns, self._suit_ns["odometry"] or line_ns)
         self._take_covered()
         return odometry.stamp_ns
+
+    def _resume_from(self, state: TrajectoryResume, stamp_ns: int) -> None:
+        """At the first sweep (stamped ``stamp_ns``): go on from the saved ``state`` if it is recent, else wait for
+        the jump; say which."""
+        refusal = resume_refusal(state, stamp_ns, self.params["resume_max_gap_s"])
+        if refusal is not None:
+            self._resume_status = f"not resumed: {refusal}; waiting for the jump"
+            self.get_logger().warning(f"{self._resume_file}: {self._resume_status}")
+            return
+        self.pipeline.resume(state)
+        self._offset_pub.publish(Int64(data=int(state.offset_ns)))
+        gap_s = (stamp_ns - state.stamp_ns) * 1e-9
+        self._resume_status = f"resumed from the state {gap_s:.1f} s before the first sweep"
+        self.get_logger().info(f"{self._resume_file}: {self._resume_status} (suit clock {state.offset_ns * 1e-6:+.1f} "
+                               f"ms from the LiDAR's, {len(state.map_points)} map points)")
+
+    def _save_resume(self) -> None:
+        """Write the trajectory's state (on the sensors' clocks as they read) if it moved on since the last."""
+        state = self.pipeline.resume_state()
+        if state is None or state.stamp_ns == self._resumed_ns:
+            return
+        stamp_ns = self._lidar_clock.external(state.stamp_ns)
+        offset_ns = self._suit_clock.external(state.stamp_ns + state.offset_ns) - stamp_ns
+        try:
+            save_resume(replace(state, stamp_ns=stamp_ns, offset_ns=offset_ns), self._resume_file)
+        except OSError as exc:
+            self._resume_writes = f"failed: {exc}"
+            self.get_logger().error(f"cannot write the trajectory's state: {exc}", throttle_duration_sec=10.0)
+            return
+        self._resumed_ns = state.stamp_ns
+        self._resume_writes = f"last at {stamp_ns * 1e-9:.1f} s"
 
     def _take_suit(self) -> None:
         """Take every suit sample already received (the sweeps' callbacks would otherwise let the suit's queues
@@ -415,6 +471,8 @@ class TrajectoryNode(GraphNode):
             "map points not kept (full)": self.pipeline.site.refused,
             "clock steps back (LiDAR, suit)": f"{len(self._lidar_clock.steps_ns)}, {len(self._suit_clock.steps_ns)}",
             "new captures begun": self._began_again,
+            "resume": self._resume_status,
+            "resume state written": self._resume_writes,
             **({"last new capture": self._why_began} if self._began_again else {}),
             "pending": pipe.waiting + len(self._waiting),
             **{k: v for k, v in sorted(pipe.counts.items()) if k not in _DROPPED},
