@@ -36,6 +36,11 @@ capture began: the sweeps of the last one are registered with what there is,
 those it still held (and any that come late) are skipped and counted, and a
 new trajectory (map, offset and mounting included) waits for the new
 capture's jump; the sweeps of the new capture received so far go to it.
+
+With ``resume_file`` the node writes its state every ``resume_period_s``
+(:mod:`lip_ros.hsc4d.resume`) and, started again mid-capture (a crash), goes
+on from it at the first sweep instead of waiting for a jump, if the state is
+at most ``resume_max_gap_s`` older than that sweep (docs/hsc4d/graph.md).
 """
 
 from __future__ import annotations
