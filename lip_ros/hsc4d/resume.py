@@ -34,6 +34,7 @@ import yaml
 __all__ = ["TrajectoryResume", "save_resume", "load_resume", "map_file", "resume_refusal"]
 
 _KIND = "lip_ros hsc4d trajectory resume"
+_NUMBERS = ("stride_scale", "pelvis_height_m", "mount_levelled_deg", "mount_yaw_deg", "suit_yaw_rad")  # floats
 _VERSION = 1
 
 
@@ -51,6 +52,7 @@ class TrajectoryResume:
     mount_levelled_deg: float  # how far levelling turned the nominal mounting (for the diagnostics)
     mount_yaw_deg: float  # how far walking turned it since (for the diagnostics)
     map_points: np.ndarray  # (M, 3) float32 the odometry's local map in map
+    suit_yaw_rad: float = 0.0  # the heading of the suit's world in map (its path turned onto the fused one)
 
     def __post_init__(self) -> None:
         for name in ("T_M_L", "T_map_P", "T_I_P"):
@@ -59,9 +61,10 @@ class TrajectoryResume:
                     or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6):
                 raise ValueError(f"{name} is not a rigid transform (4 x 4): {T.tolist()}")
             object.__setattr__(self, name, T)
-        if not 0.5 <= self.stride_scale <= 2.0 or not np.isfinite(self.pelvis_height_m):
-            raise ValueError(f"stride scale {self.stride_scale} (0.5-2) or pelvis height {self.pelvis_height_m} "
-                             "out of range")
+        if not (np.isfinite(self.stride_scale) and self.stride_scale > 0.0 and np.isfinite(self.pelvis_height_m)
+                and np.isfinite(self.suit_yaw_rad)):
+            raise ValueError(f"stride scale {self.stride_scale} (> 0) or pelvis height {self.pelvis_height_m} not "
+                             "valid")
         points = np.asarray(self.map_points, dtype=np.float32)
         if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
             raise ValueError(f"map points must be finite (M, 3), got shape {points.shape}")
@@ -71,20 +74,16 @@ class TrajectoryResume:
         """The YAML document (the map points go in a file of their own)."""
         return {"kind": _KIND, "version": _VERSION, "stamp_ns": int(self.stamp_ns), "offset_ns": int(self.offset_ns),
                 **{k: np.asarray(getattr(self, k)).tolist() for k in ("T_M_L", "T_map_P", "T_I_P")},
-                **{k: float(getattr(self, k)) for k in ("stride_scale", "pelvis_height_m", "mount_levelled_deg",
-                                                        "mount_yaw_deg")},
+                **{k: float(getattr(self, k)) for k in _NUMBERS},
                 "map_points": len(self.map_points)}
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any], map_points: np.ndarray) -> TrajectoryResume:
         """From :meth:`as_dict`'s document and the map points; ValueError if it is not one."""
         _check_kind(doc)
-        if len(map_points) != doc["map_points"]:
-            raise ValueError(f"{len(map_points)} map points where the document says {doc['map_points']}")
         return cls(stamp_ns=int(doc["stamp_ns"]), offset_ns=int(doc["offset_ns"]),
                    **{k: np.array(doc[k], dtype=np.float64) for k in ("T_M_L", "T_map_P", "T_I_P")},
-                   **{k: float(doc[k]) for k in ("stride_scale", "pelvis_height_m", "mount_levelled_deg",
-                                                 "mount_yaw_deg")},
+                   **{k: float(doc[k]) for k in _NUMBERS},
                    map_points=map_points)
 
 
@@ -103,9 +102,9 @@ def _check_kind(doc: Any) -> None:
 
 
 def map_file(path: str | Path) -> Path:
-    """Where the map points of the state at ``path`` go: ``<path>.map.npy``."""
+    """Where the map points of the state at ``path`` go: ``<path>.map.npz`` (with the state's stamp)."""
     path = Path(path)
-    return path.with_name(path.name + ".map.npy")
+    return path.with_name(path.name + ".map.npz")
 
 
 def _replace_atomically(path: Path, write: Callable[[BinaryIO], None]) -> None:
@@ -116,19 +115,27 @@ def _replace_atomically(path: Path, write: Callable[[BinaryIO], None]) -> None:
 
 
 def save_resume(state: TrajectoryResume, path: str | Path) -> None:
-    """Write ``state`` to ``path`` (YAML) and its map points to :func:`map_file` (NumPy), each atomically, the
-    points first (a stop in between leaves a state whose point count says the points do not belong to it)."""
+    """Write ``state`` to ``path`` (YAML) and its map points with its stamp to :func:`map_file` (NumPy), each
+    atomically, the points first (a stop in between leaves points whose stamp is not the state's)."""
     path = Path(path)
-    _replace_atomically(map_file(path), lambda f: np.save(f, state.map_points, allow_pickle=False))
+    _replace_atomically(map_file(path), lambda f: np.savez(f, points=state.map_points,
+                                                           stamp_ns=np.int64(state.stamp_ns)))
     _replace_atomically(path, lambda f: f.write(yaml.safe_dump(state.as_dict(), sort_keys=False).encode("utf-8")))
 
 
-def load_resume(path: str | Path) -> TrajectoryResume:
-    """Read a state written by :func:`save_resume`; OSError if unreadable, ValueError if it is not one."""
-    text = Path(path).read_text(encoding="utf-8")
+def load_resume(path: str | Path, with_map: bool = True) -> TrajectoryResume:
+    """Read a state written by :func:`save_resume` (``with_map`` False: without its map points, which are then
+    empty); ValueError if it is not one, or cannot be read whole (missing, truncated, its points another
+    state's)."""
     try:
-        doc = yaml.safe_load(text)
+        doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
         _check_kind(doc)
-        return TrajectoryResume.from_dict(doc, np.load(map_file(path), allow_pickle=False))
-    except (yaml.YAMLError, AttributeError, TypeError, KeyError, ValueError) as exc:
-        raise ValueError(f"{path} is not a {_KIND} file: {exc}") from exc
+        points = np.zeros((0, 3), dtype=np.float32)
+        if with_map:
+            with np.load(map_file(path), allow_pickle=False) as saved:
+                if int(saved["stamp_ns"]) != doc["stamp_ns"] or len(saved["points"]) != doc["map_points"]:
+                    raise ValueError(f"{map_file(path).name} holds the map of another state")
+                points = saved["points"]
+        return TrajectoryResume.from_dict(doc, points)
+    except Exception as exc:  # noqa: BLE001 - whatever a broken file raises (OSError, EOFError, zipfile, YAML...)
+        raise ValueError(f"{path} is not a whole {_KIND} file: {exc}") from exc

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from lip_ros.core.imu_sync import ImuSampleLike
+from lip_ros.core.metrics import align_yaw_translation
 from lip_ros.core.rotations import axis_angle_to_matrix
 from lip_ros.hsc4d.jump_sync import JumpSync, JumpSyncConfig
 from lip_ros.hsc4d.lidar_odometry import LidarOdometry, OdometryConfig, WearerFilter
@@ -68,10 +69,16 @@ from lip_ros.hsc4d.site_map import SiteMap, SiteMapConfig
 from lip_ros.hsc4d.suit_track import SuitTrack
 from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
 
-__all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline", "RATE_CAPPED"]
+__all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline", "RATE_CAPPED", "RESUME_WAITS"]
 
 #: :attr:`TrajectoryPipeline.counts` key of the sweeps the odometry posed by the suit's motion under its rate cap
 RATE_CAPPED = "sweeps posed by the suit's motion (registration rate cap)"
+#: the suit world's heading in map is fitted on the paths of the last this many seconds of outputs ...
+_HEADING_FIT_S = 3.0
+#: ... if the suit walked this far in them (else from the pelvis orientations)
+_HEADING_MIN_PATH_M = 0.5
+#: ... and of the sweeps a resumed trajectory dropped before the suit's samples covered one (no prediction)
+RESUME_WAITS = "sweeps dropped: resumed, before the suit's pose"
 
 
 @dataclass(frozen=True)
@@ -199,6 +206,8 @@ class TrajectoryPipeline:
         self._last_ns: int | None = None
         self._last_out: tuple[int, np.ndarray] | None = None  # the last output's stamp and fused T_map_P
         self._resume: TrajectoryResume | None = None  # to start from at the first sweep
+        self._paths: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=int(_HEADING_FIT_S * 20.0))  # the
+        #   outputs' (stamp, pelvis position in map, the suit's own in its world), at up to 20 Hz
         self._T_M_L, self._T_L_M = c.mount.T_M_L, c.mount.T_L_M
         records = int(c.record_s * 20.0)  # at up to 20 Hz
         self._landmarks: deque[np.ndarray | None] = deque(maxlen=records)  # T_O_L (the mounting applied in refine())
@@ -226,6 +235,8 @@ class TrajectoryPipeline:
         """What the trajectory waits for, or where it stands."""
         if self.offset_ns is None:
             return f"{self.jump.status}; {len(self._held)} sweeps held"
+        if self._resume is not None:
+            return "resuming the saved trajectory: waiting for the suit's pose at a sweep"
         if self.map_frame is None:
             return f"synced; fixing the map frame from the first sweeps; {len(self._held)} sweeps to register"
         check = self.mount_disagreement_deg
@@ -288,7 +299,21 @@ class TrajectoryPipeline:
         T = self.map_frame.T_map_O
         return TrajectoryResume(stamp_ns, int(self.offset_ns), self._T_M_L, T_map_P, T_I_P, self.stride_scale.value,
                                 self.map_frame.pelvis_height_m, self.mount_levelled_deg, self.mount_yaw_deg,
-                                self.odometry.map_points() @ T[:3, :3].T + T[:3, 3])
+                                self.odometry.map_points() @ T[:3, :3].T + T[:3, 3],
+                                self._suit_yaw(stamp_ns, T_map_P, T_I_P))
+
+    def _suit_yaw(self, stamp_ns: int, T_map_P: np.ndarray, T_I_P: np.ndarray) -> float:
+        """The suit world's heading in map (rad): the yaw that best turns the suit's path onto the fused one over
+        the last ``_HEADING_FIT_S`` (the pelvis frames of the two differ by the mounting's error, a few degrees,
+        which over a restart's seconds of walking is tens of centimetres); from the two pelvis orientations when
+        the path is too short to tell (standing)."""
+        recent = [(m, i) for t, m, i in self._paths if t >= stamp_ns - int(_HEADING_FIT_S * 1e9)]
+        suit = np.array([i for _, i in recent]).reshape(-1, 3)
+        if len(suit) >= 2 and np.sum(np.linalg.norm(np.diff(suit[:, :2], axis=0), axis=1)) >= _HEADING_MIN_PATH_M:
+            T = align_yaw_translation(suit, np.array([m for m, _ in recent]))
+        else:
+            T = T_map_P @ np.linalg.inv(T_I_P)
+        return float(np.arctan2(T[1, 0], T[0, 0]))
 
     def resume(self, state: TrajectoryResume) -> None:
         """Go on from ``state`` (:meth:`resume_state` of this capture's trajectory before its process stopped)
@@ -307,16 +332,16 @@ class TrajectoryPipeline:
         self._resume = state
 
     def _start_from(self, state: TrajectoryResume, ref: int) -> None:
-        """The first sweep of a resumed trajectory, at ``ref``: the odometry starts on ``state``'s local map, from
-        its pelvis pose moved by the suit's motion since (its horizontal part by the stride scale), in ``map``."""
+        """The first sweep of a resumed trajectory, at ``ref`` (the suit's pose known there): the odometry starts on
+        ``state``'s local map, from its pelvis pose turned as the suit's turned since and moved as the suit's moved,
+        that path turned into ``map`` by the suit world's heading there (its horizontal part by the stride scale)."""
         T_I_P = self.suit.pelvis(ref)
-        motion = np.eye(4)
-        if T_I_P is None:
-            self.counts["resumed without the suit's pose at the first sweep"] += 1
-        else:
-            motion = np.linalg.inv(state.T_I_P) @ T_I_P
-            motion[[0, 2], 3] *= state.stride_scale  # the pelvis frame's horizontal axes, as the graph's factors
-        self.odometry.start_at(state.T_map_P @ motion @ self._T_M_L, state.map_points, (ref - state.stamp_ns) * 1e-9)
+        T_map_P = np.eye(4)
+        T_map_P[:3, :3] = state.T_map_P[:3, :3] @ state.T_I_P[:3, :3].T @ T_I_P[:3, :3]
+        moved = axis_angle_to_matrix(np.array([0.0, 0.0, state.suit_yaw_rad])) @ (T_I_P[:3, 3] - state.T_I_P[:3, 3])
+        moved[:2] *= state.stride_scale
+        T_map_P[:3, 3] = state.T_map_P[:3, 3] + moved
+        self.odometry.start_at(T_map_P @ self._T_M_L, state.map_points, (ref - state.stamp_ns) * 1e-9)
         self.odometry.set_gravity(np.array([0.0, 0.0, 1.0]))  # O is map
         self.map_frame = MapFrame(np.eye(4), "resumed", float("nan"), state.pelvis_height_m)
 
@@ -390,7 +415,11 @@ class TrajectoryPipeline:
     def _register(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> list[TrajectoryStep]:
         """Register and fuse one sweep; the steps that became ready."""
         ref = (int(point_ns.min()) + int(point_ns.max())) // 2 if point_ns.size else stamp_ns
-        if self._resume is not None:
+        resumed = self._resume is not None
+        if resumed:
+            if self.suit.pelvis(ref) is None:  # no prediction without the suit's motion since the saved pose
+                self.counts[RESUME_WAITS] += 1
+                return []
             self._start_from(self._resume, ref)
             self._resume = None
         previous_pose, previous_ns = self.odometry.pose, (self._stamps[-1] if self._stamps else None)
@@ -400,6 +429,11 @@ class TrajectoryPipeline:
             self.counts[RATE_CAPPED] += 1
         elif step.rejected:
             self.counts["registrations not believed"] += 1
+        # a resumed trajectory's first sweep anchors the graph where it was predicted if its registration is not
+        # believed (no other landmark, no suit factor to an earlier node)
+        landmark = None if step.rejected and not resumed else step.pose
+        if resumed and step.rejected:
+            self.counts["resumed: first registration not believed, the prediction kept"] += 1
         T_O_P = step.pose @ self._T_L_M
         between = None
         if previous_ns is not None:
@@ -412,9 +446,9 @@ class TrajectoryPipeline:
                 between[[0, 2], 3] *= self.stride_scale.value
                 between[1, 3] = lidar[1, 3]  # the vertical (P's y) the suit does not know: the odometry's
         self._stamps.append(ref)
-        self._landmarks.append(None if step.rejected else step.pose)
+        self._landmarks.append(landmark)
         self._between.append(between)
-        fused = self.graph.add(ref, None if step.rejected else T_O_P, between)
+        fused = self.graph.add(ref, None if landmark is None else T_O_P, between)
         self._pending.append(_Registered(ref, step.pose, T_O_P, fused, step.rejected, step.correction_m,
                                          step.source_points, stamp_ns, step.points))
         if self._first is None:
@@ -429,6 +463,10 @@ class TrajectoryPipeline:
                               r.source_points, r.sweep_ns, r.points) for r in self._pending]
         self._pending.clear()
         self._last_out = out[-1].stamp_ns, out[-1].pelvis
+        for step in out:  # the paths the suit world's heading in map is fitted on
+            T_I_P = self.suit.pelvis(step.stamp_ns)
+            if T_I_P is not None:
+                self._paths.append((step.stamp_ns, step.pelvis[:3, 3], T_I_P[:3, 3]))
         return out
 
     def _fix_map_frame(self, ref: int) -> bool:

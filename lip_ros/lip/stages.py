@@ -259,6 +259,7 @@ class ImuStage:
         rows, codes = self.sync.validate(samples)
         reasons, done = [], []
         for name, sample, row, code in zip(names, samples, rows, codes.tolist(), strict=True):
+            self.score_latency()  # the frames the last sample let out, before this sample is kept
             reason = self._keep(name, sample, self.sync.insert(name, int(sample.stamp_ns), row, code))
             reasons.append(reason)
             if reason is None:  # a rejected sample changes nothing that makes a frame ready
@@ -348,9 +349,8 @@ class ImuStage:
     def score_latency(self) -> None:
         """Score the frames that came out since the last call for the DOT latency estimate, and take each new
         estimate off its DOT's stamps (nothing without the estimate)."""
-        for t_ns, points in self._unscored:
-            self._estimate_latency(t_ns, points)
-        self._unscored.clear()
+        while self._unscored:
+            self._estimate_latency(*self._unscored.pop(0))
 
     def _enqueue(self, waiting: _Waiting) -> list[BoneFrame]:
         self._pending.append(waiting)

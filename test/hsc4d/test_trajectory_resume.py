@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from lip_ros.hsc4d.evaluation import capture_sweeps
+from lip_ros.hsc4d.lidar_odometry import OdometryConfig
 from lip_ros.hsc4d.resume import TrajectoryResume, load_resume, map_file, save_resume
-from lip_ros.hsc4d.trajectory import TrajectoryPipeline
+from lip_ros.hsc4d.trajectory import RESUME_WAITS, TrajectoryConfig, TrajectoryPipeline
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 CUT = 120  # the sweep after which the first process stops (12 s at 10 Hz; the jump lands at about 6 s)
@@ -55,9 +56,10 @@ def capture():
 
 
 def test_a_trajectory_resumed_from_its_file_goes_on_without_another_jump(capture, tmp_path):
-    """Stopped after 12 s and started again 1.5 s later with the suit's data from then on only: without the file
-    it waits for a jump that does not come (no output); resumed from the file it poses every sweep, within a few
-    centimetres of where the uninterrupted trajectory puts the pelvis."""
+    """Stopped after 12 s and started again 1.5 s later, the suit's data from 0.3 s later on only: without the
+    file it waits for a jump that does not come (no output); resumed from the file it drops the sweeps before the
+    suit's first pose (no prediction for them) and poses every one after, within a few centimetres of where the
+    uninterrupted trajectory puts the pelvis."""
     whole, _ = _run(capture, TrajectoryPipeline())
     before, state = _run(capture, TrajectoryPipeline(), last=CUT)
     assert state is not None and before.keys() <= whole.keys()
@@ -67,6 +69,7 @@ def test_a_trajectory_resumed_from_its_file_goes_on_without_another_jump(capture
     assert loaded.stamp_ns == state.stamp_ns and np.array_equal(loaded.T_map_P, state.T_map_P)
 
     restart_ns = capture.frame_stamp_ns(CUT + GAP) + int(round(capture.suit.clock_offset_s * 1e9))  # suit clock
+    restart_ns += 300_000_000  # the suit's first samples come after the first sweeps
     cold, _ = _run(capture, TrajectoryPipeline(), first=CUT + GAP, since_ns=restart_ns)
     assert cold == {}
 
@@ -74,10 +77,11 @@ def test_a_trajectory_resumed_from_its_file_goes_on_without_another_jump(capture
     pipeline.resume(loaded)
     after, _ = _run(capture, pipeline, first=CUT + GAP, since_ns=restart_ns)
     assert pipeline.offset_ns == state.offset_ns and pipeline.status == "tracking"
-    assert len(after) == capture.num_frames - CUT - GAP  # every sweep posed
+    dropped = pipeline.counts[RESUME_WAITS]
+    assert 2 <= dropped <= 4 and len(after) == capture.num_frames - CUT - GAP - dropped  # every sweep after posed
     shift = np.array([np.linalg.norm(after[t] - whole[t]) for t in sorted(after)])
     print(f"resumed vs uninterrupted: median {np.median(shift) * 100:.1f} cm, max {shift.max() * 100:.1f} cm")
-    assert np.median(shift) < 0.03 and shift.max() < 0.08  # measured 1.7 and 4.3 cm
+    assert np.median(shift) < 0.05 and shift.max() < 0.12  # measured 3.1 and 7.6 cm
 
 
 def test_a_resume_file_is_checked(tmp_path):
@@ -91,8 +95,14 @@ def test_a_resume_file_is_checked(tmp_path):
     save_resume(state, path)
     loaded = load_resume(path)
     assert loaded.as_dict() == state.as_dict() and np.array_equal(loaded.map_points, state.map_points)
-    np.save(map_file(path), np.ones((4, 3), dtype=np.float32))  # the points of another state
-    with pytest.raises(ValueError, match="4 map points where the document says 5"):
+    assert len(load_resume(path, with_map=False).map_points) == 0
+    points = map_file(path).read_bytes()
+    save_resume(TrajectoryResume(7, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3))), path)
+    map_file(path).write_bytes(points)  # a stop between the two writes: the points of the state before
+    with pytest.raises(ValueError, match="holds the map of another state"):
+        load_resume(path)
+    map_file(path).write_bytes(points[:100])  # truncated
+    with pytest.raises(ValueError, match="is not a whole"):
         load_resume(path)
     with pytest.raises(ValueError, match="rigid transform"):
         TrajectoryResume(1, 2, 2.0 * np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)))
@@ -100,3 +110,18 @@ def test_a_resume_file_is_checked(tmp_path):
     pipeline.add_sweep(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), 1)
     with pytest.raises(ValueError, match="before its first sweep"):
         pipeline.resume(state)
+
+
+def test_a_resumed_trajectory_whose_first_registration_is_not_believed_stays_where_it_was_predicted(capture):
+    """The first registration after the resume not believed (here: any correction over 1 cm is not): the
+    trajectory starts where the prediction put it, near the uninterrupted one's, not at the map's origin (the graph
+    had no other anchor; it did before)."""
+    whole, _ = _run(capture, TrajectoryPipeline(), last=CUT + GAP + 5)
+    _, state = _run(capture, TrajectoryPipeline(), last=CUT)
+    restart_ns = capture.frame_stamp_ns(CUT + GAP) + int(round(capture.suit.clock_offset_s * 1e9))
+    pipeline = TrajectoryPipeline(TrajectoryConfig(odometry=OdometryConfig(max_correction_m=0.01)))
+    pipeline.resume(state)
+    after, _ = _run(capture, pipeline, first=CUT + GAP, last=CUT + GAP + 5, since_ns=restart_ns)
+    first = min(after)
+    assert pipeline.counts["resumed: first registration not believed, the prediction kept"] == 1
+    assert np.linalg.norm(after[first][:2] - whole[first][:2]) < 0.2 and np.linalg.norm(after[first][:2]) > 1.0

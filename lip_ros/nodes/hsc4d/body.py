@@ -174,9 +174,9 @@ class BodyNode(GraphNode):
         resume = Path(p["resume_file"]).expanduser() if p["resume_file"] else None
         if resume is not None and resume.exists() and self._scale_from_height:
             try:
-                self._resumed = load_resume(resume)
-            except (OSError, ValueError) as exc:
-                raise ParameterError(f"resume_file: {exc}") from exc
+                self._resumed = load_resume(resume, with_map=False)
+            except ValueError as exc:  # the trajectory node says so too, and waits for the jump
+                self.get_logger().warning(f"the body is scaled to its first fused pose: {exc}")
         self._offset_ns: int | None = None
         self._waiting: deque[_FusedPose] = deque()
         self._lidar_clock, self._suit_clock = SteppingClock(), SteppingClock()  # time lines across clock steps

@@ -73,9 +73,9 @@ from lip_ros.core.clock import SteppingClock, stepped_back
 from lip_ros.core.rotations import matrix_to_axis_angle, matrix_to_quat
 from lip_ros.hsc4d.lidar_odometry import OdometryConfig
 from lip_ros.hsc4d.mount import HipMountPrior
-from lip_ros.hsc4d.resume import TrajectoryResume, load_resume, resume_refusal, save_resume
+from lip_ros.hsc4d.resume import TrajectoryResume, load_resume, map_file, resume_refusal, save_resume
 from lip_ros.hsc4d.suit_restart import SuitRestart
-from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
+from lip_ros.hsc4d.trajectory import RESUME_WAITS, TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 from lip_ros.nodes.base import (
     IMU_INPUT,
     LATCHED,
@@ -98,7 +98,8 @@ __all__ = ["TrajectoryNode", "main"]
 #: the pipeline's counts of sweeps it dropped -> how this node accounts for those frames
 _DROPPED = {"sweeps dropped waiting for the jump": "skipped: held too long (no jump)",
             "sweeps dropped waiting for the map frame": "skipped: held too long (no map frame)",
-            "sweeps dropped: registration fell behind": "skipped: registration fell behind"}
+            "sweeps dropped: registration fell behind": "skipped: registration fell behind",
+            RESUME_WAITS: "skipped: resumed, before the suit's data"}
 _MAX_TWIST_DT_S = 0.5  # the twist is left zero across a longer gap between outputs
 #: the cloud input keeps this much of clouds (SensorDataQoS otherwise): the longest callback (registering a few
 #: sweeps while the rest of the process also wants the interpreter) measured up to about a second, and while the
@@ -119,6 +120,9 @@ _LIDAR = "hip lidar"  # the LiDAR's input name
 _MAX_TRACKED = 1000  # sweeps whose receipt time is kept for the latency
 #: how a sweep of the last capture is accounted for when a new one began (held by the trajectory, or come late)
 _BEGAN_AGAIN = "skipped: a new capture began"
+#: a saved state is not resumed from when the suit's newest odometry is farther than this from where the saved clock
+#: offset puts the first sweep (its samples come within a queue's length of the LiDAR's)
+_RESUME_SUIT_SLACK_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -193,9 +197,11 @@ class TrajectoryNode(GraphNode):
         if self._resume_file is not None and self._resume_file.exists():
             try:
                 self._resume = load_resume(self._resume_file)
-            except (OSError, ValueError) as exc:
-                raise ParameterError(f"resume_file: {exc}") from exc
-            self._resume_status = "state read, waiting for the first sweep"
+            except ValueError as exc:  # a crash while it was written, a disk gone bad: the jump is waited for
+                self._resume_status = f"not resumed: {exc}"
+                self.get_logger().error(f"{self._resume_status}; waiting for the jump")
+            else:
+                self._resume_status = "state read, waiting for the first sweep and the suit"
         self._resumed_ns: int | None = None  # the stamp of the state last written
         self._waiting: deque[_Sweep] = deque()
         self._suit_ns = {"imu": None, "odometry": None}  # newest accepted suit stamps
@@ -252,12 +258,11 @@ class TrajectoryNode(GraphNode):
             self.count_frame(_BEGAN_AGAIN, f"{stamp_ns}: {exc}")
             raise
         point_ns = line_ns + t.astype(np.int64)
-        if self._resume is not None:
-            self._resume_from(self._resume, line_ns)
-            self._resume = None
         self._waiting.append(_Sweep(line_ns, points.astype(np.float64), point_ns, received, int(point_ns.max()),
                                     stamp_ns))
         self._take_suit()
+        if not self._decide_resume():
+            return stamp_ns
         while len(self._waiting) > self.params["max_waiting_sweeps"]:
             self._take(self._waiting.popleft())  # goes on with the suit data there is
         self._drain()
@@ -287,10 +292,28 @@ class TrajectoryNode(GraphNode):
         self._take_covered()
         return odometry.stamp_ns
 
-    def _resume_from(self, state: TrajectoryResume, stamp_ns: int) -> None:
-        """At the first sweep (stamped ``stamp_ns``): go on from the saved ``state`` if it is recent, else wait for
-        the jump; say which."""
-        refusal = resume_refusal(state, stamp_ns, self.params["resume_max_gap_s"])
+    def _decide_resume(self) -> bool:
+        """While a saved state waits (the sweeps wait with it): once the suit has sent its odometry (or has not for
+        ``suit_wait_s`` after the first sweep), go on from the state or not; whether the sweeps may be taken."""
+        state = self._resume
+        if state is None:
+            return True
+        first, suit_ns = self._waiting[0] if self._waiting else None, self._suit_ns["odometry"]
+        if first is None or (suit_ns is None and time.monotonic() - first.received < self.params["suit_wait_s"]):
+            return False
+        self._resume = None
+        refusal = resume_refusal(state, first.stamp_ns, self.params["resume_max_gap_s"])
+        if refusal is None and suit_ns is None:
+            refusal = f"no suit odometry within {self.params['suit_wait_s']} s of the first sweep"
+        elif refusal is None and abs(suit_ns - (first.stamp_ns + state.offset_ns)) > _RESUME_SUIT_SLACK_S * 1e9:
+            refusal = (f"the suit's clock is {(suit_ns - first.stamp_ns - state.offset_ns) * 1e-9:+.1f} s from where "
+                       "the saved offset puts it (another capture, or the suit restarted)")
+        self._resume_from(state, first.stamp_ns, refusal)
+        return True
+
+    def _resume_from(self, state: TrajectoryResume, stamp_ns: int, refusal: str | None) -> None:
+        """Go on from the saved ``state`` at the first sweep (stamped ``stamp_ns``) unless ``refusal`` says why not
+        (then wait for the jump); say which."""
         if refusal is not None:
             self._resume_status = f"not resumed: {refusal}; waiting for the jump"
             self.get_logger().warning(f"{self._resume_file}: {self._resume_status}")
@@ -304,19 +327,28 @@ class TrajectoryNode(GraphNode):
 
     def _save_resume(self) -> None:
         """Write the trajectory's state (on the sensors' clocks as they read) if it moved on since the last."""
-        state = self.pipeline.resume_state()
-        if state is None or state.stamp_ns == self._resumed_ns:
-            return
-        stamp_ns = self._lidar_clock.external(state.stamp_ns)
-        offset_ns = self._suit_clock.external(state.stamp_ns + state.offset_ns) - stamp_ns
         try:
+            state = self.pipeline.resume_state()
+            if state is None or state.stamp_ns == self._resumed_ns:
+                return
+            stamp_ns = self._lidar_clock.external(state.stamp_ns)
+            offset_ns = self._suit_clock.external(state.stamp_ns + state.offset_ns) - stamp_ns
             save_resume(replace(state, stamp_ns=stamp_ns, offset_ns=offset_ns), self._resume_file)
-        except OSError as exc:
+        except (OSError, ValueError) as exc:
             self._resume_writes = f"failed: {exc}"
             self.get_logger().error(f"cannot write the trajectory's state: {exc}", throttle_duration_sec=10.0)
             return
         self._resumed_ns = state.stamp_ns
         self._resume_writes = f"last at {stamp_ns * 1e-9:.1f} s"
+
+    def _forget_resume(self) -> None:
+        """A new capture began: the saved state is the last one's (a restart must wait for the new jump)."""
+        if self._resume_file is None:
+            return
+        for path in (self._resume_file, map_file(self._resume_file)):
+            path.unlink(missing_ok=True)
+        self._resumed_ns = None
+        self._resume_status = "a new capture began: the saved state removed"
 
     def _take_suit(self) -> None:
         """Take every suit sample already received (the sweeps' callbacks would otherwise let the suit's queues
@@ -337,7 +369,8 @@ class TrajectoryNode(GraphNode):
     def _take_covered(self) -> None:
         """Once synced, take the waiting sweeps the suit now covers as its samples come in (not at the next
         drain: a sweep waited up to the drain's period, 20 ms, after its suit data was in)."""
-        while self.pipeline.offset_ns is not None and self._waiting and self._suit_covers(self._waiting[0]):
+        while (self._decide_resume() and self.pipeline.offset_ns is not None and self._waiting
+               and self._suit_covers(self._waiting[0])):
             self._take(self._waiting.popleft())
 
     def _drain(self) -> None:
@@ -345,6 +378,8 @@ class TrajectoryNode(GraphNode):
         pipeline's backlog (the sweeps held until the jump), one per call so that the suit's samples keep coming
         in between."""
         self._take_suit()
+        if not self._decide_resume():
+            return
         now = time.monotonic()
         taken = False
         while self._waiting and (self._suit_covers(self._waiting[0])
@@ -368,6 +403,8 @@ class TrajectoryNode(GraphNode):
                 last.append(sweep)
             newest = sweep.clock_ns
         self._waiting.clear()
+        self._resume = None  # a state waiting for the first sweep was the last capture's
+        self._forget_resume()
         for sweep in last:
             self._take(sweep)
         self._publish_steps(self.pipeline.catch_up())
