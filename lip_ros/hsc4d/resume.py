@@ -52,7 +52,7 @@ class TrajectoryResume:
     mount_levelled_deg: float  # how far levelling turned the nominal mounting (for the diagnostics)
     mount_yaw_deg: float  # how far walking turned it since (for the diagnostics)
     map_points: np.ndarray  # (M, 3) float32 the odometry's local map in map
-    suit_yaw_rad: float = 0.0  # the heading of the suit's world in map (its path turned onto the fused one)
+    suit_yaw_rad: float  # the heading of the suit's world in map (its path turned onto the fused one)
 
     def __post_init__(self) -> None:
         for name in ("T_M_L", "T_map_P", "T_I_P"):

@@ -73,12 +73,12 @@ __all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipel
 
 #: :attr:`TrajectoryPipeline.counts` key of the sweeps the odometry posed by the suit's motion under its rate cap
 RATE_CAPPED = "sweeps posed by the suit's motion (registration rate cap)"
-#: the suit world's heading in map is fitted on the paths of the last this many seconds of outputs ...
+#: ... and of the sweeps a resumed trajectory dropped before the suit's samples covered one (no prediction)
+RESUME_WAITS = "sweeps dropped: resumed, before the suit's pose"
+#: the suit world's heading in map (for a resume) is fitted on the paths of the last this many seconds of outputs
 _HEADING_FIT_S = 3.0
 #: ... if the suit walked this far in them (else from the pelvis orientations)
 _HEADING_MIN_PATH_M = 0.5
-#: ... and of the sweeps a resumed trajectory dropped before the suit's samples covered one (no prediction)
-RESUME_WAITS = "sweeps dropped: resumed, before the suit's pose"
 
 
 @dataclass(frozen=True)

@@ -91,13 +91,13 @@ def test_a_resume_file_is_checked(tmp_path):
     path.write_text("kind: something else\n", encoding="utf-8")
     with pytest.raises(ValueError, match="is not a"):
         load_resume(path)
-    state = TrajectoryResume(1, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)))
+    state = TrajectoryResume(1, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1)
     save_resume(state, path)
     loaded = load_resume(path)
     assert loaded.as_dict() == state.as_dict() and np.array_equal(loaded.map_points, state.map_points)
     assert len(load_resume(path, with_map=False).map_points) == 0
     points = map_file(path).read_bytes()
-    save_resume(TrajectoryResume(7, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3))), path)
+    save_resume(TrajectoryResume(7, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1), path)
     map_file(path).write_bytes(points)  # a stop between the two writes: the points of the state before
     with pytest.raises(ValueError, match="holds the map of another state"):
         load_resume(path)
@@ -105,7 +105,7 @@ def test_a_resume_file_is_checked(tmp_path):
     with pytest.raises(ValueError, match="is not a whole"):
         load_resume(path)
     with pytest.raises(ValueError, match="rigid transform"):
-        TrajectoryResume(1, 2, 2.0 * np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)))
+        TrajectoryResume(1, 2, 2.0 * np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1)
     pipeline = TrajectoryPipeline()
     pipeline.add_sweep(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), 1)
     with pytest.raises(ValueError, match="before its first sweep"):
