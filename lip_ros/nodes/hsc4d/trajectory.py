@@ -172,7 +172,7 @@ class TrajectoryNode(GraphNode):
         "max_registration_hz": Param("sweeps are registered at most this often, the others posed by the suit's "
                                      "motion (0: every sweep)", non_negative),
         "resume_file": Param("the trajectory's state, written every resume_period_s (YAML, its local map beside it "
-                             "as <file>.map.npy); read at start: a restart goes on from it without a jump, and "
+                             "as <file>.map.npz); read at start: a restart goes on from it without a jump, and "
                              "hsc4d_body_node takes the standing pelvis height from it ('' = off)"),
         "resume_period_s": Param("the state is written this often (steady time)", positive),
         "resume_max_gap_s": Param("a state this much older than the first sweep (or newer) is not resumed from",
