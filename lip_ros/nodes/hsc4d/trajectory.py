@@ -345,9 +345,14 @@ class TrajectoryNode(GraphNode):
         """A new capture began: the saved state is the last one's (a restart must wait for the new jump)."""
         if self._resume_file is None:
             return
-        for path in (self._resume_file, map_file(self._resume_file)):
-            path.unlink(missing_ok=True)
         self._resumed_ns = None
+        try:
+            for path in (self._resume_file, map_file(self._resume_file)):
+                path.unlink(missing_ok=True)
+        except OSError as exc:  # a restart then refuses the state by its stamps, or by the suit's clock
+            self._resume_status = f"a new capture began: the saved state could not be removed: {exc}"
+            self.get_logger().error(self._resume_status)
+            return
         self._resume_status = "a new capture began: the saved state removed"
 
     def _take_suit(self) -> None:
