@@ -37,7 +37,7 @@ from lip_ros.lip.calibration import Calibration, CalibrationConfig
 from lip_ros.lip.dot_latency import LatencyConfig
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.segmentation import PerformerSegmenter, SegmentationConfig, SegmentationResult, SegmentationStatus
-from lip_ros.lip.stages import MAX_PENDING_FRAMES, BoneFrame, ImuStage, LipPose, Outcome, PoseStage
+from lip_ros.lip.stages import MAX_PENDING_FRAMES, MAX_SILENT_NS, BoneFrame, ImuStage, LipPose, Outcome, PoseStage
 
 __all__ = ["PipelineConfig", "Outcome", "LipPose", "StageTimes", "FrameResult", "Segmenter", "LipPipeline"]
 
@@ -52,6 +52,7 @@ class PipelineConfig:
     calibration_file: Path | None = None
     max_pending_frames: int = MAX_PENDING_FRAMES  # frames waiting for IMU data; older ones are skipped with a reason
     latency: LatencyConfig = field(default_factory=LatencyConfig)  # the DOT latencies' online estimate
+    max_silent_ns: int = MAX_SILENT_NS  # one silent DOT's bone held this long while the other three pose (0: skip)
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,8 @@ class LipPipeline:
         self.skeleton = skeleton or load_skeleton()
         self.segmenter = segmenter or PerformerSegmenter(self.config.segmentation)
         self.imu = ImuStage(self.config.sync, self.config.calibration, self.skeleton, calibration,
-                            self.config.calibration_file, self.config.max_pending_frames, self.config.latency)
+                            self.config.calibration_file, self.config.max_pending_frames, self.config.latency,
+                            self.config.max_silent_ns)
         self.poser = PoseStage(model, self.skeleton)
         self.imu_rejections: Counter[tuple[str, str]] = Counter()  # (sensor, reason) -> count
         self._held: list[BoneFrame] = []  # processed frames waiting for the network (pose_batch > 1)

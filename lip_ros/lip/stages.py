@@ -37,7 +37,8 @@ from typing import Any, TypeVar
 import numpy as np
 
 from lip_ros.core.clock import stepped_back
-from lip_ros.core.imu_sync import FrameStatus, ImuSampleLike, ImuSynchronizer, SyncConfig, SyncResult
+from lip_ros.core.imu_sync import FrameStatus, ImuSampleLike, ImuSynchronizer, SensorStatus, SyncConfig, SyncResult
+from lip_ros.core.rotations import matrix_to_quat, rot_z
 from lip_ros.core.skeleton import Skeleton, forward_kinematics, load_skeleton
 from lip_ros.lip.calibration import (
     Calibration,
@@ -51,12 +52,14 @@ from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.sensors import IMU_NAMES
 
 __all__ = ["Outcome", "BoneFrame", "LipPose", "ImuStage", "PoseStage", "MAX_PENDING_FRAMES", "MAX_POSE_GAP_NS",
-           "CLOCKS_REASON", "CLOCK_STEP_REASON"]
+           "MAX_SILENT_NS", "CLOCKS_REASON", "CLOCK_STEP_REASON"]
 
 #: Default of how many frames may wait for IMU data (``ImuStage.max_pending``); older ones are skipped.
 MAX_PENDING_FRAMES = 20
 #: Default of how long without a pose before the network starts a new sequence (``PoseStage.max_gap_ns``).
 MAX_POSE_GAP_NS = 2_000_000_000
+#: Default of how long one silent DOT's bone is held while the other three pose the frame (``ImuStage.max_silent_ns``).
+MAX_SILENT_NS = 1_000_000_000
 
 #: The start of the reason of a frame skipped because the clock stepped back while it waited.
 CLOCK_STEP_REASON = "clock stepped back"
@@ -79,7 +82,9 @@ class BoneFrame:
     """The IMU side of one frame: bone orientations and free accelerations in L at its pose time, or why not.
 
     ``outcome`` is POSE when ``bone_rot`` / ``free_acc`` are there (order
-    ``IMU_NAMES``); ``tag`` is whatever the caller queued with the frame.
+    ``IMU_NAMES``); ``tag`` is whatever the caller queued with the frame. A
+    bone whose DOT is silent (:attr:`ImuStage.max_silent_ns`) is held, not
+    measured: its free acceleration is NaN (:attr:`held`).
     """
 
     frame_stamp_ns: int
@@ -92,6 +97,13 @@ class BoneFrame:
     free_acc: np.ndarray | None = None  # (4, 3) m/s^2 in L, gravity removed
     seconds: float = 0.0  # synchronisation and calibration time
     tag: Any = None
+
+    @property
+    def held(self) -> np.ndarray:
+        """(4,) bool: the bones held for a silent DOT rather than measured (none unless POSE)."""
+        if self.free_acc is None:
+            return np.zeros(len(IMU_NAMES), dtype=bool)
+        return ~np.isfinite(self.free_acc).all(axis=-1)
 
 
 @dataclass(frozen=True)
@@ -137,6 +149,13 @@ class ImuStage:
     that work waits until :meth:`score_latency`, which every method that takes
     data or frames calls first, so a caller can publish a frame's bones before
     it (off the frame's latency) and the results stay the same either way.
+
+    One DOT silent (no sample within ``SyncConfig.max_hold_ns``) for at most
+    ``max_silent_ns`` since it was last measured in a frame: the frame is
+    posed with the other three, that bone held at its last measured
+    orientation, turned about the vertical as the other bones turned since
+    (the performer's heading), its acceleration unknown (NaN). Two or more
+    silent, or one for longer (0: never held): the frame is skipped.
     """
 
     def __init__(
@@ -148,8 +167,12 @@ class ImuStage:
         calibration_file: Path | None = None,
         max_pending: int = MAX_PENDING_FRAMES,
         latency: LatencyConfig | None = None,
+        max_silent_ns: int = MAX_SILENT_NS,
     ) -> None:
         self.skeleton = skeleton or load_skeleton()
+        if max_silent_ns < 0:
+            raise ValueError(f"max_silent_ns must be >= 0, not {max_silent_ns}")
+        self.max_silent_ns = max_silent_ns
         self.sync = ImuSynchronizer(IMU_NAMES, sync or SyncConfig())
         #: the DOT latencies' online estimate (None: the configured ones are kept), see :mod:`lip_ros.lip.dot_latency`
         latency = latency or LatencyConfig()
@@ -173,6 +196,8 @@ class ImuStage:
         self._pending: deque[_Waiting] = deque()
         self._last_pose_ns: int | None = None  # pose time of the newest frame
         self.clock_steps = 0  # how often the frames' stamps stepped back (lip_ros.core.clock)
+        #: per DOT, the last frame it was interpolated in: (pose time, the bones (4, 3, 3) in P, which were measured)
+        self._last_measured: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
         self._unscored: list[tuple[int, np.ndarray]] = []  # frames out, not yet scored for the DOT latency (pose
         #                                                    time, points in P): one, or a few of one poll
         if calibration is None:
@@ -294,6 +319,7 @@ class ImuStage:
         if not step:
             return []
         self.clock_steps += 1
+        self._last_measured.clear()  # times of the old time line
         reason = f"{CLOCK_STEP_REASON} {step * 1e-9:.1f} s: the frame waited on the old time line"
         done = [BoneFrame(w.frame_stamp_ns, w.pose_stamp_ns, Outcome.SKIPPED, reason if w.pose_stamp_ns else w.reason,
                           w.points, tag=w.tag) for w in self._pending]
@@ -382,6 +408,7 @@ class ImuStage:
         if cal is not None:
             self.calibration = cal
             self.calibration_count += 1
+            self._last_measured.clear()  # bones of another calibration
             self._detector = None
             self._calibration_samples.clear()
             if self.calibration_file is not None:
@@ -421,14 +448,44 @@ class ImuStage:
         if self.calibration is None:
             return BoneFrame(w.frame_stamp_ns, t, Outcome.CALIBRATING, self._detector.status, w.points, tag=w.tag)
         synced = self.sync.query(t)
-        if synced.frame_status == FrameStatus.SKIP:
+        measured = np.array([s != SensorStatus.MISSING for s in synced.status])
+        silent = [IMU_NAMES[i] for i in np.flatnonzero(~measured)]
+        if synced.frame_status == FrameStatus.SKIP and not self._holds(silent, t):
             return BoneFrame(w.frame_stamp_ns, t, Outcome.SKIPPED, f"IMU: {synced.reason}", w.points, synced,
                              tag=w.tag)
-        rot, acc = zip(*(self.calibration.apply(n, synced.quat[i], synced.accel[i]) for i, n in enumerate(IMU_NAMES)))
-        rot, acc = np.stack(rot), np.stack(acc)  # in P, the calibration's frame
+        rot, acc = np.full((len(IMU_NAMES), 3, 3), np.nan), np.full((len(IMU_NAMES), 3), np.nan)
+        for i in np.flatnonzero(measured):  # in P, the calibration's frame
+            rot[i], acc[i] = self.calibration.apply(IMU_NAMES[i], synced.quat[i], synced.accel[i])
+        reason = synced.reason
+        for name in silent:
+            i = IMU_NAMES.index(name)
+            rot[i] = self._held_bone(i, rot, measured)
+            reason = f"{reason}; {name} silent {(t - self._last_measured[i][0]) * 1e-9:.1f} s: its bone held"
+        for i, status in enumerate(synced.status):  # not a sample held by the synchroniser: it is older than t
+            if status == SensorStatus.OK:
+                self._last_measured[i] = (t, rot, measured)
         if self.level is not None:
             rot, acc = self.level @ rot, acc @ self.level.T
-        return BoneFrame(w.frame_stamp_ns, t, Outcome.POSE, synced.reason, w.points, synced, rot, acc, tag=w.tag)
+        return BoneFrame(w.frame_stamp_ns, t, Outcome.POSE, reason, w.points, synced, rot, acc, tag=w.tag)
+
+    def _holds(self, silent: list[str], t: int) -> bool:
+        """Whether a frame at ``t`` without ``silent`` DOTs is posed with their bones held: one DOT, measured in a
+        frame at most ``max_silent_ns`` before."""
+        if len(silent) != 1:
+            return False
+        last = self._last_measured.get(IMU_NAMES.index(silent[0]))
+        return last is not None and 0 <= t - last[0] <= self.max_silent_ns
+
+    def _held_bone(self, i: int, rot: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        """Bone ``i``'s orientation in P as last measured, turned about the vertical by the mean turn of the bones
+        measured both then and now (``rot`` (4, 3, 3), ``measured`` (4,))."""
+        _, then, then_measured = self._last_measured[i]
+        others = np.flatnonzero(measured & then_measured)
+        if not others.size:
+            return then[i]
+        turn = matrix_to_quat(rot[others] @ np.swapaxes(then[others], -1, -2))
+        yaw = 2.0 * np.arctan2(turn[:, 2], turn[:, 3])  # each bone's turn about z (swing-twist)
+        return rot_z(np.arctan2(np.sin(yaw).sum(), np.cos(yaw).sum())) @ then[i]
 
     def _estimate_latency(self, t_ns: int, points: np.ndarray) -> None:
         """Once calibrated, score the frames up to ``t_ns`` (those seen while calibrating too, as far as the DOT
@@ -468,7 +525,9 @@ class PoseStage:
 
     def estimate(self, stamp_ns: int, points: np.ndarray, bone_rot: np.ndarray, free_acc: np.ndarray
                  ) -> tuple[LipPose, float, float]:
-        """The pose at ``stamp_ns``, and the seconds spent in the network and in the kinematics."""
+        """The pose at ``stamp_ns``, and the seconds spent in the network and in the kinematics; a bone whose
+        free acceleration is NaN is held for a silent DOT (:class:`BoneFrame`): the network's input, not a
+        measurement the output is kept near."""
         return self.estimate_sequence([stamp_ns], [points], bone_rot[None], free_acc[None])[0]
 
     def estimate_sequence(self, stamps_ns: Sequence[int], points: Sequence[np.ndarray], bone_rot: np.ndarray,
@@ -485,6 +544,8 @@ class PoseStage:
             if last is None or not 0 < stamp_ns - last <= self.max_gap_ns:  # a gap, or the clock stepped back
                 new.add(k)
             last = stamp_ns
+        held = ~np.isfinite(free_acc).all(axis=-1)  # (T, 4) bones held for a silent DOT: no acceleration known
+        free_acc = np.where(held[..., None], 0.0, free_acc)
         level = self.level
         if level is not None:  # into P, where the network works
             points = [(p @ level).astype(p.dtype) for p in points]
@@ -494,7 +555,7 @@ class PoseStage:
             if a in new:
                 self.model.reset()
                 self.sequences += 1
-            outs.append(self.model.stream(points[a:b], bone_rot[a:b], free_acc[a:b]))
+            outs.append(self.model.stream(points[a:b], bone_rot[a:b], free_acc[a:b], ~held[a:b]))
         self._last_ns = stamps_ns[-1]
         rot, trans, scale = (np.concatenate([getattr(o, k) for o in outs]) for k in ("local_rot", "translation",
                                                                                       "body_scale"))

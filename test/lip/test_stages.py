@@ -9,8 +9,10 @@ from helpers import DEMO_BAG
 
 from lip_msgs_py import imu_sample
 from lip_ros.core.exact_sync import ExactTimeJoiner
+from lip_ros.core.rotations import rot_x, rot_z
 from lip_ros.lip.batch import replay_bag
 from lip_ros.lip.calibration import MAX_FRAME_RATE_HZ, MAX_SAMPLE_RATE_HZ, CalibrationDetector
+from lip_ros.lip.dot_latency import LatencyConfig
 from lip_ros.lip.nets.config import LipConfig
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.nets.models import LipNet
@@ -157,3 +159,71 @@ def test_frames_on_another_clock_are_skipped_with_the_reason(lidar_offset_s):
     assert all(f.reason.startswith(prefix) for f in other), other[0].reason
     gaps = [float(f.reason[len(prefix):].split(" s ")[0]) for f in other]
     assert max(abs(g - lidar_offset_s) for g in gaps) < 10.0  # the offset, within the data's 10 s
+
+
+def _turning_stage(calibrated_file, tmp_path, max_silent_ns: int, silent: dict[str, tuple[float, float]]
+                   ) -> list:
+    """Four DOTs turning together about the vertical at 0.5 rad/s (a performer turning), 100 Hz for 4 s, each
+    silent in its ``silent`` window (s); frames every 100 ms from 0.5 s; the frames out."""
+    file = tmp_path / "cal.yaml"
+    file.write_bytes(calibrated_file.read_bytes())
+    stage = ImuStage(calibration_file=file, latency=LatencyConfig(enabled=False), max_silent_ns=max_silent_ns)
+    out = []
+    for k in range(1, 401):
+        t = k * 0.01
+        for name in IMU_NAMES:
+            a, b = silent.get(name, (np.inf, np.inf))
+            if not a <= t < b:
+                quat = [0.0, 0.0, np.sin(0.25 * t), np.cos(0.25 * t)]
+                assert stage.add_imu(name, imu_sample(round(t * 1e9), name, quat, [0.0, 0.0, 0.5], [0.0, 0.0, 9.81])) \
+                    is None
+        if k >= 50 and k % 10 == 0:
+            out += stage.add_frame(round(t * 1e9), round(t * 1e9), np.ones((50, 3)))
+        out += stage.poll()
+    return out + stage.flush()
+
+
+def test_one_silent_dot_is_held_turning_with_the_others_for_up_to_max_silent(calibrated_file, tmp_path):
+    """One DOT silent: its frames posed with its bone held (acceleration NaN) and turned as the others turned,
+    which here is where it truly is; past ``max_silent_ns``, or two DOTs silent, or 0: skipped."""
+    truth = {f.pose_stamp_ns: f.bone_rot for f in _turning_stage(calibrated_file, tmp_path, 0, {})}
+    out = _turning_stage(calibrated_file, tmp_path, 1_000_000_000, {"left_ankle": (1.005, 3.0)})
+    ankle = IMU_NAMES.index("left_ankle")
+    held = [f for f in out if f.outcome.value == "pose" and f.held.any()]
+    # its last sample (1.0 s) held by the synchroniser for the frame at 1.1 (max_hold 100 ms); then its bone held up
+    # to 1 s after the last frame that interpolated it (1.0)
+    assert [round(f.pose_stamp_ns * 1e-9, 1) for f in held] == [round(1.2 + 0.1 * k, 1) for k in range(9)]
+    for f in held:
+        assert f.held.tolist() == [n == "left_ankle" for n in IMU_NAMES]
+        assert np.isnan(f.free_acc[ankle]).all() and np.isfinite(np.delete(f.free_acc, ankle, 0)).all()
+        assert "left_ankle silent" in f.reason and "its bone held" in f.reason
+        np.testing.assert_allclose(f.bone_rot, truth[f.pose_stamp_ns], atol=1e-6)  # turned with the performer
+    skipped = [round(f.pose_stamp_ns * 1e-9, 1) for f in out if f.outcome.value == "skipped"]
+    assert skipped == [round(2.1 + 0.1 * k, 1) for k in range(9)]
+    after = [f for f in out if f.pose_stamp_ns >= 3.0e9]
+    assert after and all(f.outcome.value == "pose" and not f.held.any() for f in after)
+    two = _turning_stage(calibrated_file, tmp_path, 1_000_000_000,
+                         {"left_ankle": (1.005, 3.0), "right_wrist": (1.005, 3.0)})
+    never = _turning_stage(calibrated_file, tmp_path, 0, {"left_ankle": (1.005, 3.0)})
+    for frames in (two, never):
+        assert [round(f.pose_stamp_ns * 1e-9, 1) for f in frames if f.outcome.value == "skipped"] == \
+            [round(1.2 + 0.1 * k, 1) for k in range(18)]
+
+
+def test_a_held_bone_is_the_networks_input_not_a_measurement():
+    """With the bones kept at their measurements (tolerance 0), a held bone (NaN acceleration) is the network's
+    own estimate, the measured ones are exactly their measurements."""
+    model = LipModel(LipNet(LipConfig.tiny()), bone_tolerance_deg=0.0, surface_fit=None)
+    stage = PoseStage(model)
+    rng = np.random.default_rng(1)
+    rot = np.stack([rot_z(a) @ rot_x(b) for a, b in rng.uniform(-1.0, 1.0, (4, 2))])
+    acc = np.zeros((4, 3))
+    acc[2] = np.nan  # left ankle held
+    pts = rng.normal([5.0, 0.0, 0.0], 0.2, (200, 3)).astype(np.float32)
+    pose = stage.estimate(0, pts, rot, acc)[0]
+    skeleton = stage.skeleton
+    bones = [skeleton.index(skeleton.lip_imus[n]["bone_joint"]) for n in IMU_NAMES]
+    for i, j in enumerate(bones):
+        same = np.allclose(pose.glob_rot[j], rot[i], atol=1e-6)
+        assert same == (i != 2), IMU_NAMES[i]
+    assert np.isfinite(pose.joint_pos).all()

@@ -18,6 +18,8 @@ from helpers import DEMO_BAG, console_script
 from lip_msgs_py import msg_to_diagnostics, msg_to_pose_array, msg_to_pose_stamped
 from lip_ros.bagio import bag_topics, read_messages
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
+from lip_ros.nodes.base import node_defaults
+from lip_ros.nodes.lip import LIP_PARAMS_FILE
 from lip_ros.rig.bag import write_capture_bag
 from lip_ros.rig.capture import CaptureConfig, CaptureSession
 from lip_ros.rig.faults import FaultSpec, read_fault_windows, write_faulty_bag
@@ -101,6 +103,23 @@ def test_each_fault_is_on_diagnostics_while_it_lasts(run) -> None:
         named = [t for t, s in statuses if name in s.name and text in s.message
                  and window.start_ns <= t <= window.end_ns + REPORT_S * 1e9]
         assert named, f"{window.kind}: no WARN/ERROR on /diagnostics from '{name}' saying '{text}'"
+
+
+def test_one_silent_dot_is_posed_through_for_max_silent_dot_s_then_skipped(run) -> None:
+    """The first second of the 3 s silence posed with the DOT's bone held, said on /diagnostics; the rest skipped."""
+    bag, out, faults, _ = run
+    if "imu_silent" not in faults:
+        pytest.skip("no silent DOT in this run")
+    window = next(w for w in read_fault_windows(bag) if w.kind == "imu_silent")
+    poses = np.array([msg_to_pose_stamped(m.msg).stamp_ns for m in read_messages(out, [LIP_TOPICS.root_pose])])
+    since = (poses[(poses >= window.start_ns) & (poses <= window.end_ns)] - window.start_ns) * 1e-9
+    max_silent_s = node_defaults(LIP_PARAMS_FILE, "calibration_node")["max_silent_dot_s"]
+    assert (since <= max_silent_s + 0.1).all(), since  # + the synchroniser's hold
+    assert (since > 0.3).sum() >= 6, since  # 10 frames a second; the clouds in the window may also be faulty
+    warned = [d.stamp_ns for d in (msg_to_diagnostics(m.msg) for m in read_messages(out, ["/diagnostics"]))
+              for s in d.statuses if s.level > 0 and s.name == "calibration_node: frames"
+              and "left_ankle x" in s.message and "bone held" in s.message]
+    assert any(window.start_ns <= t <= window.start_ns + (max_silent_s + REPORT_S) * 1e9 for t in warned)
 
 
 def test_the_poses_resume_with_the_first_frame_after_each_fault(run) -> None:

@@ -14,7 +14,7 @@ from lip_ros.lip.dot_latency import LatencyConfig
 from lip_ros.lip.pipeline import PipelineConfig
 from lip_ros.lip.segmentation import SegmentationConfig
 from lip_ros.lip.sensors import IMU_NAMES, IMU_TOPICS, LIDAR_TOPIC
-from lip_ros.lip.stages import MAX_PENDING_FRAMES, MAX_POSE_GAP_NS, ImuStage, PoseStage
+from lip_ros.lip.stages import MAX_PENDING_FRAMES, MAX_POSE_GAP_NS, MAX_SILENT_NS, ImuStage, PoseStage
 from lip_ros.nodes.base import ParameterError, check_params_files, node_defaults
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
 from lip_ros.nodes.lip.graph import LIP_GRAPH
@@ -58,6 +58,7 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults():
     assert tuple(cal["dot_latency_s"]) == sync.latency_ns == ()
     assert cal["estimate_dot_latency"] == LatencyConfig().enabled == PipelineConfig().latency.enabled
     assert cal["max_pending_frames"] == MAX_PENDING_FRAMES == PipelineConfig().max_pending_frames
+    assert round(cal["max_silent_dot_s"] * NS) == MAX_SILENT_NS == PipelineConfig().max_silent_ns
     assert round(pose["max_pose_gap_s"] * NS) == MAX_POSE_GAP_NS
     seg, segmentation = node_defaults(LIP_PARAMS_FILE, "segmentation_node"), SegmentationConfig()
     assert seg["lock_rule"] == segmentation.lock_rule
@@ -66,6 +67,7 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults():
     assert (tuple(seg["ground_plane"]) or None) == segmentation.ground_plane
     # the stages take those constants as their defaults
     assert inspect.signature(ImuStage).parameters["max_pending"].default == MAX_PENDING_FRAMES
+    assert inspect.signature(ImuStage).parameters["max_silent_ns"].default == MAX_SILENT_NS
     assert inspect.signature(PoseStage).parameters["max_gap_ns"].default == MAX_POSE_GAP_NS
 
 

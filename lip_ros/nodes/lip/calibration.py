@@ -8,6 +8,9 @@ acceleration (gravity removed) in the LiDAR frame at the pose time: a
 ``sensor_msgs/Imu`` on ``bone_topics`` (reliable) with the performer cloud's
 stamp and frame id, angular velocity marked not provided (REP-145
 covariance[0] = -1). ``pose_node`` joins them with the points by exact stamp.
+One DOT silent for up to ``max_silent_dot_s``: the frame is still posed, that
+bone held (``lip_ros.lip.stages.ImuStage``) and published with its linear
+acceleration not provided, a WARN on ``/diagnostics`` while it lasts.
 
 Calibration: automatic at start (or loaded from ``calibration_file``, which
 every solved calibration is written to, so a restarted node resumes), and on
@@ -22,6 +25,7 @@ as a std_msgs/String holding YAML: state, status line, the calibration (the
 from __future__ import annotations
 
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +59,7 @@ from lip_ros.nodes.base import (
     LatencyWindow,
     Param,
     ParameterError,
+    non_negative,
     numbers,
     positive,
     run_nodes,
@@ -103,6 +108,8 @@ class CalibrationNode(GraphNode):
         "max_imu_hold_s": Param("oldest a DOT sample may be when held for a frame it does not cover", positive),
         "imu_wait_s": Param("how long a frame waits for late DOT data after its pose time", positive),
         "max_pending_frames": Param("frames that may wait for DOT data; older ones are skipped", positive),
+        "max_silent_dot_s": Param("one DOT silent up to this long: the frames are posed with its bone held, turned "
+                                  "with the performer (0: skipped)", non_negative),
         "max_clock_gap_s": Param("a frame stamped this far outside the buffered DOT samples is on another clock: "
                                  "skipped, ERROR on /diagnostics", positive),
         "dot_latency_s": Param("per DOT, order as imu_topics: how much later than measured its driver stamps a sample "
@@ -121,7 +128,8 @@ class CalibrationNode(GraphNode):
                           latency_ns=tuple(round(v * 1e9) for v in p["dot_latency_s"]))
         try:
             self.stage = ImuStage(sync, calibration_file=file, max_pending=p["max_pending_frames"],
-                                  latency=LatencyConfig(enabled=p["estimate_dot_latency"]))
+                                  latency=LatencyConfig(enabled=p["estimate_dot_latency"]),
+                                  max_silent_ns=round(p["max_silent_dot_s"] * 1e9))
         except (OSError, ValueError, KeyError, CalibrationError) as exc:
             raise ParameterError(f"cannot load calibration_file {file}: {exc}") from exc
         self._latency = LatencyWindow()
@@ -130,6 +138,8 @@ class CalibrationNode(GraphNode):
         self._state_pub = self.create_publisher(String, p["calibration_topic"], LATCHED)
         self._published_state: tuple[int, bool] | None = None
         self._held = 0  # frames published with a held (not interpolated) sample of some DOT
+        self._held_bones: Counter[str] = Counter()  # per DOT: frames posed with its bone held (the DOT silent)
+        self._held_bones_reported: Counter[str] = Counter()
         self._clock_steps = 0  # clock steps of the frames and the DOTs logged so far
         self._last_sync = "no frame yet"
         for name, topic in zip(IMU_NAMES, p["imu_topics"]):
@@ -173,12 +183,15 @@ class CalibrationNode(GraphNode):
             if f.outcome == Outcome.POSE:
                 frame_id, received = f.tag
                 quats = matrix_to_quat(f.bone_rot)
-                bones = [imu_to_msg(self.backend, imu_sample(f.pose_stamp_ns, frame_id, quat=q, accel=acc))
-                         for q, acc in zip(quats, f.free_acc)]
+                held = f.held
+                bones = [imu_to_msg(self.backend, imu_sample(f.pose_stamp_ns, frame_id, quat=q,
+                                                             accel=None if h else acc))  # held: not provided
+                         for q, acc, h in zip(quats, f.free_acc, held)]
                 self._latency.add(time.monotonic() - received)  # before the publication (see segmentation_node)
                 for pub, bone in zip(self._bone_pubs, bones):
                     pub.publish(bone)
                 self._held += bool(f.reason)
+                self._held_bones.update(n for n, h in zip(IMU_NAMES, held) if h)
                 self._last_sync = f.reason or "all DOTs interpolated"
             elif f.outcome == Outcome.CALIBRATING:
                 self.count_frame(Outcome.CALIBRATING.value)
@@ -269,10 +282,17 @@ class CalibrationNode(GraphNode):
             level = max(level, DiagnosticLevel.WARN)
             message = "; ".join([message, *(f"{n} stamped {abs(1e3 * d):.0f} ms {'ahead of' if d < 0 else 'behind'} "
                                            "the other DOTs (against their arrival)" for n, d in odd.items())])
+        held = self._held_bones - self._held_bones_reported  # called once a report
+        self._held_bones_reported = Counter(self._held_bones)
+        if held:
+            level = max(level, DiagnosticLevel.WARN)
+            message = "; ".join([message, "since the last report posed with a silent DOT's bone held: " + ", ".join(
+                f"{n} x{c}" for n, c in sorted(held.items()))])
         if self._last_sync.startswith(CLOCKS_REASON):  # nothing can come out until the clocks agree
             level, message = DiagnosticLevel.ERROR, self._last_sync
         return level, message, {"calibration": "calibrated" if self.stage.calibrated else "none",
                                           "pending": self.stage.pending, "bones with a held DOT sample": self._held,
+                                          **{f"{n}'s bone held (frames)": c for n, c in self._held_bones.items()},
                                           "samples held for the calibration": self.stage.calibration_samples,
                                           "DOT heading reset": self._heading_reset,
                                           DOT_LATENCY_VALUE: self.stage.latency_status,
