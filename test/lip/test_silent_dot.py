@@ -27,7 +27,8 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 #: The first DOT (by topic name: the left ankle) silent 0.9 s every 3 s after the calibration.
 SILENCES = [FaultSpec("imu_silent", start, 0.9) for start in (8.0, 11.0, 14.0, 17.0)]
 #: What the held frames may reach, mean over the silences (mm, deg, cm): measured (printed) walk 48 / 32 / 2.9,
-#: dance 21 / 16 / 0.9 (their last poses: 135 / 47 / 30 and 129 / 55 / 3.2; the DOT there: 14 / 2.5 / 0.8, 11 / 2.7 / 0.6).
+#: dance 21 / 16 / 0.9 (their last poses: 135 / 47 / 30 and 129 / 55 / 3.2; the DOT there: 14 / 2.5 / 0.8 and
+#: 11 / 2.7 / 0.6).
 BOUNDS = {"walk": (65.0, 40.0, 4.0), "dance": (30.0, 20.0, 2.0)}
 
 
