@@ -463,7 +463,7 @@ class ImuStage:
             reason = f"{reason}; {name} silent {(t - self._last_measured[i][0]) * 1e-9:.1f} s: its bone held"
         for i, status in enumerate(synced.status):  # not a sample held by the synchroniser: it is older than t
             if status == SensorStatus.OK:
-                self._last_measured[i] = (t, rot, measured)
+                self._last_measured[i] = (t, rot.copy(), measured)
         if self.level is not None:
             rot, acc = self.level @ rot, acc @ self.level.T
         return BoneFrame(w.frame_stamp_ns, t, Outcome.POSE, reason, w.points, synced, rot, acc, tag=w.tag)
@@ -544,8 +544,6 @@ class PoseStage:
             if last is None or not 0 < stamp_ns - last <= self.max_gap_ns:  # a gap, or the clock stepped back
                 new.add(k)
             last = stamp_ns
-        held = ~np.isfinite(free_acc).all(axis=-1)  # (T, 4) bones held for a silent DOT: no acceleration known
-        free_acc = np.where(held[..., None], 0.0, free_acc)
         level = self.level
         if level is not None:  # into P, where the network works
             points = [(p @ level).astype(p.dtype) for p in points]
@@ -555,7 +553,7 @@ class PoseStage:
             if a in new:
                 self.model.reset()
                 self.sequences += 1
-            outs.append(self.model.stream(points[a:b], bone_rot[a:b], free_acc[a:b], ~held[a:b]))
+            outs.append(self.model.stream(points[a:b], bone_rot[a:b], free_acc[a:b]))
         self._last_ns = stamps_ns[-1]
         rot, trans, scale = (np.concatenate([getattr(o, k) for o in outs]) for k in ("local_rot", "translation",
                                                                                       "body_scale"))

@@ -91,6 +91,8 @@ def summarize_bag(path: str | Path) -> BagSummary:
             at = stamp - (suit_offset_ns if m.topic.startswith("/mocap/") else 0)  # on the LiDAR's clock
             if a_pose and a_pose["start_ns"] + 300_000_000 <= at <= a_pose["end_ns"] - 300_000_000:
                 s = msg_to_imu(m.msg)
+                if not np.isfinite(s.accel).all():  # not provided (a bone held for a silent DOT, lip/bones)
+                    continue
                 up = quat_to_matrix(s.quat) @ s.accel  # the specific force in the sensor's inertial frame
                 rest.setdefault(m.topic, []).append((float(np.linalg.norm(s.accel)), float(up[2] / np.linalg.norm(up))))
     all_stamps = [s for v in stamps.values() for s in v]

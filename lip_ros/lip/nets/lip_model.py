@@ -235,16 +235,14 @@ class LipModel:
         result = self.stream([points], [imu_rot], [imu_acc])
         return LipOutput(*(getattr(result, k)[0] for k in LipOutput.__dataclass_fields__))
 
-    def stream(self, clouds: Sequence[np.ndarray], imu_rot: Sequence[np.ndarray], imu_acc: Sequence[np.ndarray],
-               measured: np.ndarray | None = None) -> LipOutput:
+    def stream(self, clouds: Sequence[np.ndarray], imu_rot: Sequence[np.ndarray], imu_acc: Sequence[np.ndarray]
+               ) -> LipOutput:
         """The next T frames of the streamed sequence in one forward: ``step`` of each in turn (up to float
-        rounding); T clouds (N_t, 3), (T, 4, 3, 3), (T, 4, 3); outputs with a leading T. ``measured`` (T, 4)
-        bool: which bone rotations are measurements (the rest, held for a silent sensor, only the network's
-        input; None: all)."""
+        rounding); T clouds (N_t, 3), (T, 4, 3, 3), (T, 4, 3); outputs with a leading T."""
         if self.config.bidirectional:
             raise ValueError("a bidirectional (offline) model cannot stream; use run()")
         result, self._state = self._forward(self._pre, clouds, imu_rot, imu_acc, self._state, self._scale,
-                                            self._fitter, measured)
+                                            self._fitter)
         return result
 
     def run(self, clouds: Sequence[np.ndarray], imu_rot: np.ndarray, imu_acc: np.ndarray) -> LipOutput:
@@ -259,12 +257,17 @@ class LipModel:
     @torch.no_grad()
     def _forward(self, pre: Preprocessor, clouds: Sequence[np.ndarray], imu_rot: Sequence[np.ndarray],
                  imu_acc: Sequence[np.ndarray], state: State | None, scale: _ScaleTracker,
-                 fitter: SurfaceFitter | None, measured: np.ndarray | None = None) -> tuple[LipOutput, State]:
-        """Frames through ``pre`` and the network from ``state``; the outputs in L and the state after them
-        (``measured`` as :meth:`stream`'s)."""
+                 fitter: SurfaceFitter | None) -> tuple[LipOutput, State]:
+        """Frames through ``pre`` and the network from ``state``; the outputs in L and the state after them.
+
+        A bone whose acceleration is not finite is held for a silent sensor
+        (:class:`lip_ros.lip.stages.BoneFrame`): its rotation is the network's input (acceleration 0), not a
+        measurement the output is kept near."""
+        imu_acc = np.array(imu_acc, dtype=np.float64).reshape(-1, len(IMU_NAMES), 3)
+        held = ~np.isfinite(imu_acc).all(axis=-1)  # (T, 4)
+        imu_acc[held] = 0.0
         frames = [pre(p, r, a) for p, r, a in zip(clouds, imu_rot, imu_acc, strict=True)]
         out, state = self.net(*stack_frames(frames), state)
         imu_rot = np.array(imu_rot, dtype=np.float64).reshape(-1, len(IMU_NAMES), 3, 3)
-        if measured is not None:
-            imu_rot[~np.asarray(measured, dtype=bool)] = np.nan  # not kept near: see _measured_bones
+        imu_rot[held] = np.nan  # not kept near: see _measured_bones
         return _to_lidar(out, frames, scale, imu_rot, self.bone_tolerance_deg, clouds, fitter), state
