@@ -12,6 +12,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO_BAG = REPO / "bags" / "demo_walk"
+#: The HSC4D capture the node tests share (``hsc4d_run`` in test/nodes/conftest.py): seed 5's A-pose, its jump
+#: landing at about 6 s, then walking; keyword arguments of ``SiteCaptureConfig``.
+HSC4D_CAPTURE = {"seed": 5, "seconds": 20.0}
 
 
 def console_script(name: str) -> str:

@@ -67,10 +67,16 @@ class Actor:
 
     def pose_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations (24, 3, 3) and joint positions (24, 3) at ``t`` seconds since the capture start."""
+        glob, pos = self.poses_at(np.array([t]))
+        return glob[0], pos[0]
+
+    def poses_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Global rotations (T, 24, 3, 3) and joint positions (T, 24, 3) at the times ``t`` (T,) (a trajectory's
+        in one vectorised sample)."""
         if callable(getattr(self.motion, "sample", None)):
-            glob, pos = self.motion.sample(np.array([t])).global_pose(self.motion.skeleton)
-            return glob[0], pos[0]
-        return self.motion(t)
+            return self.motion.sample(np.asarray(t, dtype=np.float64)).global_pose(self.motion.skeleton)
+        poses = [self.motion(float(x)) for x in t]
+        return np.stack([g for g, _ in poses]), np.stack([p for _, p in poses])
 
 
 #: ``poses(t_ns)``: the sensor's pose R_W_L (N, 3, 3), p_W_L (N, 3) in the scene at the times ``t_ns`` (N,).
@@ -334,17 +340,16 @@ class OusterModel:
         refl = np.where(hit, reflectivity, 0.0).reshape(self.shape)
         labels = np.full(self.shape, -1, dtype=np.int16)
         stamps, actor_poses = [], []
+        blocks = [np.arange(lo, min(lo + block, self.columns)) for lo in range(0, self.columns, block)]
+        mids = np.array([cols[len(cols) // 2] for cols in blocks])
+        t_ns = stamp_ns + self.column_t_ns[mids].astype(np.int64)
         for k, actor in enumerate(actors):
-            for lo in range(0, self.columns, block):
-                cols = np.arange(lo, min(lo + block, self.columns))
-                mid = cols[len(cols) // 2]
-                t_ns = stamp_ns + int(self.column_t_ns[mid])
-                glob, joints = actor.pose_at((t_ns - start_ns) * 1e-9)
-                if lo == 0:
-                    stamps.append(t_ns)
-                    actor_poses.append((glob, joints))
+            globs, joints = actor.poses_at((t_ns - start_ns) * 1e-9)  # one sample for the sweep's blocks
+            stamps.append(int(t_ns[0]))
+            actor_poses.append((globs[0], joints[0]))
+            for cols, mid, glob, joint in zip(blocks, mids, globs, joints, strict=True):
                 r, c, rho = (x.reshape(self.beams, len(cols)) for x in
-                             actor.body.raycast(pos[mid], dirs[:, cols].reshape(-1, 3), glob, joints))
+                             actor.body.raycast(pos[mid], dirs[:, cols].reshape(-1, 3), glob, joint))
                 nearer = r < best[:, cols]
                 for image, value in ((best, r), (cos, c), (refl, rho), (labels, k)):
                     image[:, cols] = np.where(nearer, value, image[:, cols])

@@ -3,6 +3,8 @@ where the uninterrupted one goes."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -50,9 +52,26 @@ def _run(capture: SiteCapture, pipeline: TrajectoryPipeline, first: int = 0, las
     return out, state
 
 
+class _MadeOnce(SiteCapture):
+    """The capture with its sweeps and suit data simulated once: every run below plays the same capture again."""
+
+    @functools.cached_property
+    def _made(self) -> tuple:
+        return list(super().frames()), super().suit_streams(), super().suit_odometry()
+
+    def frames(self, start: int = 0, stop: int | None = None):
+        return iter(self._made[0][start:stop])
+
+    def suit_streams(self):
+        return self._made[1]
+
+    def suit_odometry(self):
+        return self._made[2]
+
+
 @pytest.fixture(scope="module")
 def capture():
-    return SiteCapture(SiteCaptureConfig(seed=0, seconds=20.0, columns=512))
+    return _MadeOnce(SiteCaptureConfig(seed=0, seconds=20.0, columns=512))
 
 
 def test_a_trajectory_resumed_from_its_file_goes_on_without_another_jump(capture, tmp_path):

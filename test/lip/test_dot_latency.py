@@ -4,6 +4,7 @@ latency change, and on rig walks whose DOTs are stamped on arrival, 20-60 ms lat
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -109,12 +110,24 @@ WALK = CaptureConfig(scenario="walk", seconds=20.0, columns=1024, distance_m=7.0
 MAX_ERROR_MS = 12.0
 
 
+@pytest.fixture(scope="module")
+def walk_bag(tmp_path_factory: pytest.TempPathFactory):
+    """``walk_bag(seed)``: the session of ``WALK`` with that seed and its bag, written once per module."""
+    root = tmp_path_factory.mktemp("walks")
+
+    def made(seed: int) -> tuple[CaptureSession, Path]:
+        session, bag = CaptureSession(dataclasses.replace(WALK, seed=seed)), root / f"walk{seed}"
+        if not bag.exists():
+            write_capture_bag(session, bag, progress=False)
+        return session, bag
+
+    return made
+
+
 @pytest.mark.usefixtures("one_torch_thread")
 @pytest.mark.parametrize("seed", [3, 5, 6])
-def test_late_dots_latencies_are_estimated_on_a_rig_walk(seed, tmp_path):
-    session = CaptureSession(dataclasses.replace(WALK, seed=seed))
-    bag = tmp_path / "walk"
-    write_capture_bag(session, bag, progress=False)
+def test_late_dots_latencies_are_estimated_on_a_rig_walk(seed, walk_bag):
+    session, bag = walk_bag(seed)
     pipeline = LipPipeline(LipModel.load(), PipelineConfig(), pose_batch=64)
     list(process_bag_batch(pipeline, bag))
     for name, stream in session.imu_streams().items():
@@ -136,11 +149,10 @@ class _FlushOnly(LipPipeline):
 
 
 @pytest.mark.usefixtures("one_torch_thread")
-def test_a_bag_gives_the_same_poses_and_latencies_live_and_flushed_at_its_end(tmp_path):
+def test_a_bag_gives_the_same_poses_and_latencies_live_and_flushed_at_its_end(walk_bag):
     """Frames processed as their DOT data arrives, and all at the end: the same estimates taken at the same
     frames, so the same poses, bit for bit."""
-    bag = tmp_path / "walk"
-    write_capture_bag(CaptureSession(dataclasses.replace(WALK, seed=6)), bag, progress=False)
+    _, bag = walk_bag(6)
     config = PipelineConfig(max_pending_frames=10_000, sync=SyncConfig(capacity=4096))  # holds the whole bag
     model = LipModel.load()
     live, flushed = LipPipeline(model, config), _FlushOnly(model, config)

@@ -14,20 +14,18 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers import console_script
+from helpers import HSC4D_CAPTURE, console_script
 
 from lip_msgs_py import msg_to_diagnostics, msg_to_odometry, msg_to_pose_array, msg_to_pose_stamped
 from lip_ros.bagio import read_messages
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, ODOMETRY_TOPIC
 from lip_ros.rig.faults import FaultSpec, write_faulty_bag
-from lip_ros.rig.site_bag import write_site_bag
-from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 from lip_ros.tools.process_bag import HSC4D, summarize_outputs
 
 pytestmark = pytest.mark.ros  # DDS traffic and subprocesses
 
-#: seed 5: the A-pose, the jump (landing at about 6 s; the accuracy is aligned on the 5 s after it), then walking
-CAPTURE = SiteCaptureConfig(seed=5, seconds=20.0)
+#: the faults of each run on the session's capture (``hsc4d_run``: 20 s, the jump landing at about 6 s; the
+#: accuracy is aligned on the 5 s after it)
 FAULTS = {
     "clean": [],
     # each of these alone took the trajectory metres off before (imus_silent 11 m, imu_late 1.3 m in 30 s)
@@ -36,26 +34,22 @@ FAULTS = {
     # both clocks 5 s back at 12 s, and 5 s ahead again at 16 s
     "clock": [FaultSpec("clock_back", 12.0, 100.0), FaultSpec("clock_forward", 16.0, 100.0)],
     # at 14 s the capture starts again from its beginning (its own stamps) and plays whole
-    "loop": [FaultSpec("played_again", 14.0, CAPTURE.seconds)],
+    "loop": [FaultSpec("played_again", 14.0, HSC4D_CAPTURE["seconds"])],
 }
 STEP_NS = 5_000_000_000
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    bag = tmp_path_factory.mktemp("hsc4d_faults") / "clean"
-    write_site_bag(SiteCapture(CAPTURE), bag, progress=False)
-    return bag
-
-
-@pytest.fixture(scope="module")
-def runs(capture: Path) -> dict[str, tuple[Path, Path, subprocess.CompletedProcess]]:
-    """``lip_process_bag`` on the clean capture and on each faulty copy: name -> (bag, outputs, process)."""
-    out = {}
+def runs(hsc4d_run) -> dict[str, tuple[Path, Path, subprocess.CompletedProcess]]:
+    """``lip_process_bag`` on the clean capture (the session's) and on each faulty copy: name -> (bag, outputs,
+    process)."""
+    capture = hsc4d_run[0]
+    out = {"clean": hsc4d_run}
     for name, faults in FAULTS.items():  # about 45 s each (loop: 60 s)
-        bag = capture if not faults else capture.with_name(name)
-        if faults:
-            write_faulty_bag(capture, bag, faults, seed=5)
+        if not faults:
+            continue
+        bag = capture.with_name(name)
+        write_faulty_bag(capture, bag, faults, seed=5)
         outputs = capture.with_name(f"{name}_outputs")
         out[name] = bag, outputs, subprocess.run([console_script("lip_process_bag"), str(bag), str(outputs)],
                                                  capture_output=True, text=True, timeout=240)

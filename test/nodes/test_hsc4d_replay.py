@@ -34,20 +34,16 @@ from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 pytestmark = pytest.mark.ros  # DDS traffic and subprocesses
 
-SECONDS = 14.0  # A-pose, the jump (landing at about 6 s for this seed), then 8 s of walking
+SECONDS = 14.0  # of the 20 Hz and 240 Hz captures: A-pose, the jump (landing at about 6 s for seed 5), 8 s walking
 
 
 @pytest.fixture(scope="module")
-def replay(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, str]:
-    """The capture's bag, the graph's outputs and the summary ``lip_process_bag`` printed."""
-    root = tmp_path_factory.mktemp("hsc4d_replay")
-    bag = root / "capture"
-    write_site_bag(SiteCapture(SiteCaptureConfig(seed=5, seconds=SECONDS)), bag, progress=False)
-    out, png = root / "outputs", root / "outputs.png"
-    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out), "--plot", str(png), "--refine"],
-                          capture_output=True, text=True, timeout=240)
+def replay(hsc4d_run) -> tuple[Path, Path, str]:
+    """The session's capture (``hsc4d_run``, 20 s), the graph's outputs and the summary ``lip_process_bag``
+    printed."""
+    bag, out, proc = hsc4d_run
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
     return bag, out, proc.stdout
 
 
