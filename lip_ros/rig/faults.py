@@ -5,8 +5,9 @@ garbage, clocks that step, messages that arrive late or out of order. Each
 :class:`FaultSpec` names one fault kind (:data:`FAULT_KINDS`) and its window
 on the bag's receive (log) time, from the first message. The sensors are found
 by type, so LIP and HSC4D bags are treated alike: every ``sensor_msgs/Imu``
-topic outside ``/gt/`` is an IMU (sorted by name; "the first IMU" is the first
-of them), every ``sensor_msgs/PointCloud2`` outside ``/gt/`` a LiDAR.
+topic outside ``/gt/`` is an IMU (sorted by name; a fault of one IMU hits the
+first of them unless it names another), every ``sensor_msgs/PointCloud2``
+outside ``/gt/`` a LiDAR.
 
 :func:`write_faulty_bag` writes the new bag, copies the rig's truth sidecars
 and writes ``faults.yaml`` beside them: each fault's window on the sensors'
@@ -30,14 +31,15 @@ import yaml
 from lip_msgs_py import RosbagsBackend
 from lip_ros.bagio import RawMessage, bag_span, bag_topics, mcap_writer, read_raw
 
-__all__ = ["FAULT_KINDS", "FaultSpec", "FaultWindow", "FAULTS_FILE", "write_faulty_bag", "read_fault_windows"]
+__all__ = ["FAULT_KINDS", "ONE_IMU_FAULTS", "FaultSpec", "FaultWindow", "FAULTS_FILE", "write_faulty_bag",
+           "read_fault_windows"]
 
 #: The sidecar that says where the faults are.
 FAULTS_FILE = "faults.yaml"
 
 #: Fault kinds and what each does inside its window.
 FAULT_KINDS = {
-    "imu_silent": "the first IMU sends nothing",
+    "imu_silent": "one IMU (the first, or the one named) sends nothing",
     "imus_silent": "no IMU sends anything",
     "all_silent": "no sensor sends anything (from the start: a capture without its calibration poses)",
     "lidar_gap": "no LiDAR frame arrives",
@@ -45,7 +47,7 @@ FAULT_KINDS = {
     "bad_imu_samples": "one IMU sample in three is bad, in turn: NaN orientation, Inf acceleration, zero "
                        "quaternion, NaN rate",
     "imu_reordered": "each IMU's messages arrive swapped in pairs, and one in five twice",
-    "imu_ahead": "the first IMU stamps its samples 40 ms ahead of the others",
+    "imu_ahead": "one IMU (the first, or the one named) stamps its samples 40 ms ahead of the others",
     "imu_late": "every IMU sample arrives 300 ms late",
     "malformed_clouds": "LiDAR frames malformed, in turn: point_step shorter than the fields, data truncated, no "
                         "x field, row_step not matching the data, a field of an unknown datatype",
@@ -58,6 +60,9 @@ FAULT_KINDS = {
                     "the bag ends with it",
 }
 
+#: The kinds that hit one IMU (``FaultSpec.imu``).
+ONE_IMU_FAULTS = ("imu_silent", "imu_ahead")
+
 _IMU = "sensor_msgs/msg/Imu"
 _CLOUD = "sensor_msgs/msg/PointCloud2"
 _CLOCK_STEP_NS = 5_000_000_000
@@ -69,17 +74,21 @@ _MAX_DELAY_NS = _LATE_NS + 1_000_000_000  # no message is logged later than this
 
 @dataclass(frozen=True)
 class FaultSpec:
-    """A fault ``kind`` (:data:`FAULT_KINDS`) from ``start_s`` for ``duration_s`` of the bag's receive time."""
+    """A fault ``kind`` (:data:`FAULT_KINDS`) from ``start_s`` for ``duration_s`` of the bag's receive time; ``imu``:
+    the IMU topic a fault of one IMU (:data:`ONE_IMU_FAULTS`) hits (None: the first by name)."""
 
     kind: str
     start_s: float
     duration_s: float
+    imu: str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in FAULT_KINDS:
             raise ValueError(f"unknown fault {self.kind!r}; known: {', '.join(FAULT_KINDS)}")
         if self.start_s < 0 or self.duration_s <= 0:
             raise ValueError(f"fault {self.kind}: start must be >= 0 s and duration > 0 s")
+        if self.imu is not None and self.kind not in ONE_IMU_FAULTS:
+            raise ValueError(f"fault {self.kind}: only {' and '.join(ONE_IMU_FAULTS)} hit one IMU")
 
 
 @dataclass(frozen=True)
@@ -123,6 +132,9 @@ class _Rewriter:
         self.clouds = {t for t, i in topics.items() if i.msgtype == _CLOUD and not t.startswith("/gt/")}
         self.t0 = bag_span(src)[0]
         self.faults = faults
+        for f in faults:
+            if f.imu is not None and f.imu not in self.imus:
+                raise ValueError(f"fault {f.kind}: {f.imu} is not an IMU topic of {src} ({', '.join(self.imus)})")
         self.backend = RosbagsBackend()
         self.rng = np.random.default_rng(seed)
         self.count: dict[tuple[str, str], int] = {}  # (fault kind, topic) -> messages of it seen in the window
@@ -133,6 +145,10 @@ class _Rewriter:
     def _active(self, log_ns: int) -> list[tuple[int, str]]:
         s = (log_ns - self.t0) * 1e-9
         return [(k, f.kind) for k, f in enumerate(self.faults) if f.start_s <= s < f.start_s + f.duration_s]
+
+    def _hits(self, k: int, topic: str) -> bool:
+        """Whether fault ``k``, a fault of one IMU, hits ``topic``."""
+        return bool(self.imus) and topic == (self.faults[k].imu or self.imus[0])
 
     def _clock_step(self, log_ns: int) -> int:
         """The stamp shift of the clock faults begun by ``log_ns`` (they last to their window's end)."""
@@ -170,9 +186,9 @@ class _Rewriter:
             self.last_stamp[k] = max(self.last_stamp.get(k, stamp), stamp)
             n = self.count[(kind, m.topic)] = self.count.get((kind, m.topic), 0) + 1
             imu, cloud = m.topic in self.imus, m.topic in self.clouds
-            first_imu = bool(self.imus) and m.topic == self.imus[0]
+            one_imu = self._hits(k, m.topic)
             dropped = cloud and (kind == "lidar_gap" or (kind == "lidar_drops" and self.rng.random() < 0.1))
-            if (kind == "all_silent" or (kind == "imus_silent" and imu) or (kind == "imu_silent" and first_imu)
+            if (kind == "all_silent" or (kind == "imus_silent" and imu) or (kind == "imu_silent" and one_imu)
                     or dropped):
                 return [], False
             if kind == "bad_imu_samples" and imu and n % 3 == 0:
@@ -188,7 +204,7 @@ class _Rewriter:
             elif kind == "imu_reordered" and imu:
                 hold = n % 2 == 1
                 copies = 2 if n % 5 == 0 else 1
-            elif kind == "imu_ahead" and first_imu:
+            elif kind == "imu_ahead" and one_imu:
                 _set_stamp(msg, _stamp_ns(msg) + _AHEAD_NS)
             elif kind == "imu_late" and imu:
                 log_ns += _LATE_NS
@@ -216,7 +232,8 @@ class _Rewriter:
             start = self.t0 + round(f.start_s * 1e9)
             first = self.first_stamp.get(k, start)
             last = self.last_stamp.get(k, start + round(f.duration_s * 1e9))
-            out.append(FaultWindow(f.kind, first, last, FAULT_KINDS[f.kind]))
+            hit = f" ({f.imu or self.imus[0]})" if f.kind in ONE_IMU_FAULTS and self.imus else ""
+            out.append(FaultWindow(f.kind, first, last, FAULT_KINDS[f.kind] + hit))
         return out
 
 

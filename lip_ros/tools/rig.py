@@ -4,7 +4,7 @@
   lip_rig inspect DIR [--plot PNG]
   lip_rig site --seed 3 [--walk 90] [--plot PNG]     (a scene with height of the HSC4D rig, a walk through it)
   lip_rig site-bag --seed 3 --seconds 90 --out DIR   (an HSC4D capture: hip LiDAR, suit, its odometry)
-  lip_rig faults IN OUT --fault imu_silent 6 3 [--fault ...]   (IN rewritten with faults: kind, start s, seconds)
+  lip_rig faults IN OUT --fault imu_silent 6 3 [--fault ...] [--imu TOPIC]   (IN with faults: kind, start s, seconds)
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from lip_ros.rig.capture import SENSORS, CaptureConfig, CaptureSession
-from lip_ros.rig.faults import FAULT_KINDS, FaultSpec, write_faulty_bag
+from lip_ros.rig.faults import FAULT_KINDS, ONE_IMU_FAULTS, FaultSpec, write_faulty_bag
 from lip_ros.rig.motion import SCENARIOS
 from lip_ros.rig.site_capture import SiteCaptureConfig
 
@@ -93,7 +93,8 @@ def _site_bag(args: argparse.Namespace) -> int:
 
 
 def _faults(args: argparse.Namespace) -> int:
-    specs = [FaultSpec(kind, float(start), float(seconds)) for kind, start, seconds in args.fault]
+    specs = [FaultSpec(kind, float(start), float(seconds), args.imu if kind in ONE_IMU_FAULTS else None)
+             for kind, start, seconds in args.fault]
     for w in write_faulty_bag(args.bag, args.out, specs, seed=args.seed):
         print(f"{w.kind}: stamps {w.start_ns} .. {w.end_ns} ({(w.end_ns - w.start_ns) * 1e-9:.2f} s): "
               f"{w.description}")
@@ -170,6 +171,8 @@ def parser() -> argparse.ArgumentParser:
                                           "clock)")
     f.add_argument("--fault", nargs=3, action="append", required=True, metavar=("KIND", "START_S", "SECONDS"),
                    help="a fault from START_S (receive time from the bag's first message) for SECONDS; repeatable")
+    f.add_argument("--imu", metavar="TOPIC", help=f"the IMU topic the faults of one IMU ({', '.join(ONE_IMU_FAULTS)}) "
+                                                  "hit (default: the first IMU topic by name)")
     f.add_argument("--seed", type=int, default=0, help="for the faults drawn at random (lidar_drops)")
     f.set_defaults(func=_faults)
     return p

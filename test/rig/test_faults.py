@@ -89,7 +89,7 @@ def test_malformed_blinded_and_empty_clouds(faulty) -> None:
 def test_windows_are_on_the_sensors_clock_and_the_bag_is_deterministic(faulty, tmp_path) -> None:
     bag, src, out, t0 = faulty
     windows = {w.kind: w for w in read_fault_windows(bag)}
-    assert set(windows) == set(WINDOWS) and all(windows[k].description == FAULT_KINDS[k] for k in windows)
+    assert set(windows) == set(WINDOWS) and all(windows[k].description.startswith(FAULT_KINDS[k]) for k in windows)
     gap = windows["lidar_gap"]
     frames = [stamp_to_ns(m.msg.header.stamp) for m in src[LIDAR_TOPIC] if _inside(m, t0, "lidar_gap")]
     assert gap.start_ns <= min(frames) and max(frames) <= gap.end_ns
@@ -127,3 +127,18 @@ def test_a_capture_played_again_starts_over_with_its_own_stamps(tmp_path) -> Non
         assert stamps == [stamp_to_ns(m.msg.header.stamp) for m in before + again]  # the capture's own stamps
     first = [stamp_to_ns(m.msg.header.stamp) for m in src[LIDAR_TOPIC] if m.log_ns - t0 < 5e9]
     assert window.kind == "played_again" and window.start_ns <= min(first) and max(first) <= window.end_ns
+
+
+def test_a_fault_of_one_imu_hits_the_imu_named(tmp_path) -> None:
+    """``FaultSpec.imu``: the named DOT goes silent, the others (the first by name among them) do not; an IMU the bag
+    lacks, or a name on a fault of every IMU, is refused."""
+    bag = tmp_path / "wrist"
+    (window,) = write_faulty_bag(DEMO_BAG, bag, [FaultSpec("imu_silent", 3.0, 1.0, IMUS[-1])])
+    out, t0 = _by_topic(bag), bag_span(DEMO_BAG)[0]
+    inside = {topic: [m for m in out[topic] if 3.0 <= (m.log_ns - t0) * 1e-9 < 4.0] for topic in IMUS}
+    assert not inside[IMUS[-1]] and all(inside[topic] for topic in IMUS[:-1])
+    assert window.description.endswith(f"({IMUS[-1]})")
+    with pytest.raises(ValueError, match="is not an IMU topic"):
+        write_faulty_bag(DEMO_BAG, tmp_path / "none", [FaultSpec("imu_silent", 3.0, 1.0, "/dot/tail/imu")])
+    with pytest.raises(ValueError, match="hit one IMU"):
+        FaultSpec("imus_silent", 3.0, 1.0, IMUS[0])
