@@ -11,9 +11,9 @@ from helpers import HSC4D_CAPTURE, console_script
 
 @pytest.fixture(scope="session")
 def hsc4d_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, subprocess.CompletedProcess]:
-    """The HSC4D rig capture ``HSC4D_CAPTURE`` and
-    ``lip_process_bag --plot --refine`` on it: (bag, outputs, process; the plot ``outputs.png``, the refinement
-    ``outputs_refined``). The clean run of the faulty captures' tests and the replay's tests."""
+    """The HSC4D rig capture ``HSC4D_CAPTURE`` and ``lip_process_bag --plot --refine`` on it: (bag, outputs,
+    process), the plot and the refinement beside the outputs (``<outputs>.png``, ``<outputs>_refined``). The clean
+    run of the faulty captures' tests and the bag the replay's tests check."""
     from lip_ros.rig.site_bag import write_site_bag
     from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
