@@ -22,11 +22,12 @@ Per sweep (:meth:`LidarOdometry.register`):
    is fitted to the believed registrations of the last ``vertical_window_s``
    with the IMU's own height profile between them, so that the guesses do not
    carry on a climb of their own); a registration is not believed (the guess is
-   kept, and the step says why) when it moves the guess farther than ``max_correction_m``, or when
-   its horizontal motion differs from the suit's by more than ``speed_ratio - 1``
-   times the suit's plus ``speed_floor_mps`` (the paper's speed rule, online,
-   before a sliding registration reaches the map); the map is kiss-icp's voxel
-   hash map of deskewed points, bounded by ``max_range_m`` round the sensor.
+   kept, and the step says why) when it moves the guess farther than
+   ``max_correction_m``, or when its horizontal motion differs from the suit's
+   by more than ``speed_ratio - 1`` times the suit's plus ``speed_floor_mps``
+   (the paper's speed rule, online, before a sliding registration reaches the
+   map); the map is kiss-icp's voxel hash map of deskewed points, bounded by
+   ``max_range_m`` round the sensor.
 
 Sweeps are registered at most ``max_rate_hz`` times a second (10: at 20 Hz
 every other one); a sweep in between keeps the initial guess of step 3
@@ -377,7 +378,7 @@ class LidarOdometry:
             if vertical is not None:  # ... carried on by the IMU's acceleration
                 known = None
                 if self._believed and self._believed[-1][0] != self._registered_ns:  # the last one not believed
-                    known = self._vertical_velocity(vertical, self.pose[:3, :3] @ up)
+                    known = self._vertical_velocity(vertical, self.pose[:3, :3] @ up, stamp_ns)
                 if known is None and self._delta_s > 0.0:  # the last two registered sweeps' difference
                     known = (self._registered_ns - int(self._delta_s * 5e8),
                              float(self._delta[:3, :3].T @ self._delta[:3, 3] @ up) / self._delta_s)
@@ -386,12 +387,13 @@ class LidarOdometry:
             shift = horizontal + rise * up
         return self.pose @ _se3(turn, shift), suit_motion
 
-    def _vertical_velocity(self, vertical: VerticalShift, up: np.ndarray) -> tuple[int, float] | None:
+    def _vertical_velocity(self, vertical: VerticalShift, up: np.ndarray, stamp_ns: int) -> tuple[int, float] | None:
         """The sensor's velocity along ``up`` (3,) in O at the last believed registration, fitted over the believed
-        registrations of the last ``vertical_window_s`` (:func:`fitted_vertical_velocity`)."""
-        if not self._believed:
-            return None
+        registrations of the last ``vertical_window_s`` (:func:`fitted_vertical_velocity`); None if that one is more
+        than ``_MAX_EXTRAPOLATION_S`` before ``stamp_ns`` (the IMU's integral drifts)."""
         newest = self._believed[-1][0]
+        if (stamp_ns - newest) * 1e-9 > _MAX_EXTRAPOLATION_S:
+            return None
         recent = [(ns, float(p @ up)) for ns, p in self._believed
                   if (newest - ns) * 1e-9 <= self.config.vertical_window_s]
         return fitted_vertical_velocity(recent, vertical)

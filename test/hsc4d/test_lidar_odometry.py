@@ -141,7 +141,8 @@ def test_after_a_registration_not_believed_the_guess_climbs_as_the_believed_ones
     """Through the jump (seed 3): the believed registrations at the true pelvis heights up to one sweep, the next
     registration not believed, its guess 10 cm too high and climbing at 1 m/s beyond the truth: the guess after it
     rises as the truth within 1 cm (the velocity fitted over the believed ones; measured 0.3), where the guesses'
-    own velocity is off by up to 11 cm; after a believed registration the last two's difference is carried on."""
+    own velocity is off by up to 11 cm; after a believed registration the last two's difference is carried on, and
+    so it is over a second after the last believed one (the IMU's integral drifts)."""
     capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
     rotation = _pelvis_rotation(capture, HipMountPrior().R_M_L)
     jump = next((start, end) for name, start, end in capture.phases_ns() if name == "jump")
@@ -170,6 +171,8 @@ def test_after_a_registration_not_believed_the_guess_climbs_as_the_believed_ones
         assert abs(believed[2, 3] - odometry.pose[2, 3] - carried) < 1e-9
         own = max(own, abs(carried - (z[k + 2] - z[k + 1])))
     assert worst < 0.01 and own > 0.08
+    late = odometry._believed[-1][0] + 1_100_000_000  # over a second after the last believed: not fitted
+    assert odometry._vertical_velocity(rotation.vertical_shift, up, late) is None
 
 
 def test_deskewing_with_the_true_rotation_undoes_the_sweeps_distortion():
