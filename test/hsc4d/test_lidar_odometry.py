@@ -106,6 +106,16 @@ def test_the_pelvis_imu_carries_the_height_through_the_jump(noise):
     assert PelvisRotation(HipMountPrior().R_M_L).vertical_shift(int(mids[0]), 0.0, int(mids[0]), int(mids[1])) is None
 
 
+def _through_the_jump() -> tuple[PelvisRotation, np.ndarray, np.ndarray]:
+    """Seed 3's suit (its noise) in a PelvisRotation, sweep middles every 0.1 s from 0.6 s before its jump to 0.2 s
+    after it (ns) and the true pelvis heights then (m)."""
+    capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
+    jump = next((start, end) for name, start, end in capture.phases_ns() if name == "jump")
+    mids = np.arange(jump[0] - 600_000_000, jump[1] + 200_000_000, 100_000_000)
+    return (_pelvis_rotation(capture, HipMountPrior().R_M_L), mids,
+            capture.truth((mids - capture.epoch_ns) * 1e-9).pelvis[:, 2])
+
+
 def test_the_vertical_velocity_is_fitted_over_the_believed_registrations():
     """Through the jump (seed 3, the suit's noise): the pelvis heights at the sweeps of the last 0.5 s, the newest
     11 cm too high (a registration in the landing's impact: seed 0 with the LiDAR tilted 15 deg): the velocity
@@ -113,11 +123,7 @@ def test_the_vertical_velocity_is_fitted_over_the_believed_registrations():
     the difference of the last two is off by up to 12 cm (on seed 0 the registrations against it were not believed
     and the guesses climbed on at 1 m/s); with no height off within 1 cm (measured 0.3); nothing with one height or
     before the suit's offset."""
-    capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
-    rotation = _pelvis_rotation(capture, HipMountPrior().R_M_L)
-    jump = next((start, end) for name, start, end in capture.phases_ns() if name == "jump")
-    mids = np.arange(jump[0] - 600_000_000, jump[1] + 200_000_000, 100_000_000)
-    z = capture.truth((mids - capture.epoch_ns) * 1e-9).pelvis[:, 2]
+    rotation, mids, z = _through_the_jump()
     worst = {0.0: 0.0, 0.11: 0.0}
     two_points = 0.0
     for k in range(4, len(mids) - 1):
@@ -143,11 +149,7 @@ def test_after_a_registration_not_believed_the_guess_climbs_as_the_believed_ones
     rises as the truth within 1 cm (the velocity fitted over the believed ones; measured 0.3), where the guesses'
     own velocity is off by up to 11 cm; after a believed registration the last two's difference is carried on, and
     so it is over a second after the last believed one (the IMU's integral drifts)."""
-    capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
-    rotation = _pelvis_rotation(capture, HipMountPrior().R_M_L)
-    jump = next((start, end) for name, start, end in capture.phases_ns() if name == "jump")
-    mids = np.arange(jump[0] - 600_000_000, jump[1] + 200_000_000, 100_000_000)
-    z = capture.truth((mids - capture.epoch_ns) * 1e-9).pelvis[:, 2]
+    rotation, mids, z = _through_the_jump()
     up = np.array([0.0, 0.0, 1.0])
     suit = SimpleNamespace(horizontal_motion=lambda t0, t1: (np.zeros(3), up), lidar_motion=lambda t0, t1: None)
     worst = own = 0.0
