@@ -21,7 +21,8 @@ Per sweep (:meth:`LidarOdometry.register`):
    jump's take-off and landing; after a registration not believed the velocity
    is fitted to the believed registrations of the last ``vertical_window_s``
    with the IMU's own height profile between them, so that the guesses do not
-   carry on a climb of their own); a registration is not believed (the guess is
+   carry on a climb of their own; while the IMU says the sensor has stood
+   still for ``still_window_s`` (``still``), from no vertical velocity); a registration is not believed (the guess is
    kept, and the step says why) when it moves the guess farther than
    ``max_correction_m``, or when its horizontal motion differs from the suit's
    by more than ``speed_ratio - 1`` times the suit's plus ``speed_floor_mps``
@@ -61,8 +62,8 @@ from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from lip_ros.hsc4d.mount import HipMountPrior, rotation_between
 from lip_ros.hsc4d.suit_track import SuitTrack
 
-__all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "VerticalShift", "OdometryStep", "NOT_REGISTERED",
-           "LidarOdometry", "fitted_vertical_velocity", "KissIcpAlone"]
+__all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "VerticalShift", "StillDetector", "OdometryStep",
+           "NOT_REGISTERED", "LidarOdometry", "fitted_vertical_velocity", "KissIcpAlone"]
 
 #: ``rotation(t_ns, ref_ns)``: the sensor frame at times ``t_ns`` (N,) in the sensor frame at ``ref_ns``,
 #: R_Lref_L (N, 3, 3); NaN where unknown.
@@ -71,6 +72,10 @@ SweepRotation = Callable[[np.ndarray, int], np.ndarray]
 #: ``vertical(v_ns, v_mps, t0_ns, t1_ns)``: how far the sensor rises from ``t0_ns`` to ``t1_ns`` (m) if its
 #: vertical velocity was ``v_mps`` at ``v_ns`` (e.g. the pelvis IMU's acceleration integrated); None if unknown.
 VerticalShift = Callable[[int, float, int, int], "float | None"]
+
+#: ``still(t_ns, window_s, max_accel_mps2)``: whether the sensor stood still over the ``window_s`` up to ``t_ns``,
+#: its acceleration under ``max_accel_mps2`` (e.g. the pelvis IMU's); False if unknown.
+StillDetector = Callable[[int, float, float], bool]
 
 
 @dataclass(frozen=True)
@@ -118,13 +123,19 @@ class OdometryConfig:
     # them not believed. After a believed one the last two registered sweeps' difference stays: fitted always, the
     # development captures' ATE went from 4.4 to 5.9 cm (docs/hsc4d/trajectory.md, "Rig variants")
     vertical_window_s: float = 0.5
+    # with the IMU's vertical motion and a still detector: a sensor whose acceleration stayed under still_accel_mps2
+    # for the last still_window_s is taken to have no vertical velocity (a zero-velocity update). A standing wearer's
+    # sweeps were not believed 14 times in a row after a jump's landing (a hip LiDAR tilted up 45 deg sees 180 points,
+    # ICP slides sideways) and the guesses sank at the velocity fitted over the landing, 15 cm in 1.4 s
+    still_window_s: float = 0.3
+    still_accel_mps2: float = 0.3
 
     def __post_init__(self) -> None:
         if not (0.0 < self.voxel_size_m and 0.0 <= self.min_range_m < self.max_range_m
                 and self.max_points_per_voxel > 0 and self.initial_threshold_m > 0.0 and self.max_iterations > 0
                 and self.convergence > 0.0 and self.threads >= 0 and self.speed_ratio >= 1.0
                 and self.speed_floor_mps >= 0.0 and 0.0 <= self.gravity_gain <= 1.0 and self.max_rate_hz >= 0.0
-                and self.vertical_window_s >= 0.0):
+                and self.vertical_window_s >= 0.0 and self.still_window_s > 0.0 and self.still_accel_mps2 > 0.0):
             raise ValueError(f"invalid {self}")
 
     def kiss(self) -> KISSConfig:
@@ -287,18 +298,18 @@ class LidarOdometry:
 
     def register(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int,
                  rotation: SweepRotation | None = None, suit: SuitTrack | None = None,
-                 vertical: VerticalShift | None = None) -> OdometryStep:
+                 vertical: VerticalShift | None = None, still: StillDetector | None = None) -> OdometryStep:
         """Register one sweep: ``points`` (N, 3) in L, each seen at ``point_ns`` (N,), posed at ``stamp_ns`` (the
         sweep's reference time); ``rotation`` the sensor's rotation over time from the IMU, ``suit`` the suit's
-        own odometry and ``vertical`` the IMU's vertical motion, if known. A sweep with no points keeps the
-        predicted pose, and so does one that comes sooner than ``max_rate_hz`` allows after the last registered
-        (:data:`NOT_REGISTERED`, its points neither registered nor mapped); one not after the last is refused
-        (ValueError)."""
+        own odometry, ``vertical`` the IMU's vertical motion and ``still`` whether it stands still, if known. A
+        sweep with no points keeps the predicted pose, and so does one that comes sooner than ``max_rate_hz``
+        allows after the last registered (:data:`NOT_REGISTERED`, its points neither registered nor mapped); one
+        not after the last is refused (ValueError)."""
         if self._stamp_ns is not None and stamp_ns <= self._stamp_ns:
             raise ValueError(f"sweep at {stamp_ns} ns is not after the last one ({self._stamp_ns} ns)")
         c = self.config
         dt = 0.0 if self._stamp_ns is None else (stamp_ns - self._stamp_ns) * 1e-9
-        guess, suit_motion = self._guess(stamp_ns, dt, rotation, suit, vertical)
+        guess, suit_motion = self._guess(stamp_ns, dt, rotation, suit, vertical, still)
         sigma = float(self._threshold.get_threshold())
         if not self._due(stamp_ns):
             self.pose, tilt = self._level(guess, stamp_ns, suit)
@@ -353,11 +364,12 @@ class LidarOdometry:
                 or (stamp_ns - self._registered_ns) * 1e-9 >= _RATE_SLACK / rate)
 
     def _guess(self, stamp_ns: int, dt: float, rotation: SweepRotation | None, suit: SuitTrack | None,
-               vertical: VerticalShift | None) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+               vertical: VerticalShift | None, still: StillDetector | None = None
+               ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
         """The predicted pose T_O_L at ``stamp_ns``, ``dt`` s after the last sweep: the IMU's rotation (else the
-        suit odometry's), the suit's horizontal motion and the IMU's vertical where known, else the motion between
-        the last two registered sweeps at the same rate, for at most ``_MAX_EXTRAPOLATION_S``; and the suit's
-        horizontal motion and up (None if unknown)."""
+        suit odometry's), the suit's horizontal motion and the IMU's vertical where known (from no vertical
+        velocity now if ``still`` says so), else the motion between the last two registered sweeps at the same
+        rate, for at most ``_MAX_EXTRAPOLATION_S``; and the suit's horizontal motion and up (None if unknown)."""
         turn = self._delta[:3, :3]
         scale = min(dt, _MAX_EXTRAPOLATION_S) / self._delta_s if self._delta_s > 0.0 else 0.0
         if self._delta_s > 0.0:  # constant velocity, scaled to this sweep's interval
@@ -377,7 +389,10 @@ class LidarOdometry:
             rise = float(shift @ up)
             if vertical is not None:  # ... carried on by the IMU's acceleration
                 known = None
-                if self._believed and self._believed[-1][0] != self._registered_ns:  # the last one not believed
+                c = self.config
+                if still is not None and still(stamp_ns, c.still_window_s, c.still_accel_mps2):
+                    known = (stamp_ns, 0.0)
+                elif self._believed and self._believed[-1][0] != self._registered_ns:  # the last one not believed
                     known = self._vertical_velocity(vertical, self.pose[:3, :3] @ up, stamp_ns)
                 if known is None and self._delta_s > 0.0:  # the last two registered sweeps' difference
                     known = (self._registered_ns - int(self._delta_s * 5e8),

@@ -22,6 +22,7 @@ from lip_ros.core.rotations import quat_to_matrix
 __all__ = ["PelvisRotation"]
 
 _PELVIS = "pelvis"
+_STEP_NS = 5_000_000  # the IMU's acceleration is integrated and checked at this step
 
 
 class PelvisRotation:
@@ -55,27 +56,45 @@ class PelvisRotation:
         out[ok] = quat_to_matrix(quat[ok]) @ self.R_M_L
         return out
 
-    def vertical_shift(self, v_ns: int, v_mps: float, t0_ns: int, t1_ns: int, step_ns: int = 5_000_000
+    def vertical_shift(self, v_ns: int, v_mps: float, t0_ns: int, t1_ns: int, step_ns: int = _STEP_NS
                        ) -> float | None:
         """How far the pelvis rises from ``t0_ns`` to ``t1_ns`` (LiDAR clock; m) if its vertical velocity was
         ``v_mps`` at ``v_ns``: the IMU's vertical acceleration (its specific force turned into the suit's
         gravity-aligned frame, less gravity) integrated twice, in steps of ``step_ns``; None where unknown. Over
         a sweep or two this is what carries a jump or a stair step that a constant velocity misses."""
-        if self.offset_ns is None:
-            return None
         start, end = min(v_ns, t0_ns), max(t0_ns, t1_ns)
         t = np.unique(np.concatenate([np.arange(start, end, step_ns, dtype=np.int64), [v_ns, t0_ns, t1_ns, end]]))
-        stamp = t + self.offset_ns
-        quat = self._sync.orientations(_PELVIS, stamp)
-        force = self._sync.specific_forces(_PELVIS, stamp)
-        if not (np.isfinite(quat).all() and np.isfinite(force).all()):
+        accel = self._acceleration(t)
+        if accel is None:
             return None
-        up = np.einsum("nab,nb->na", quat_to_matrix(quat), force)[:, 2] - GRAVITY
+        up = accel[:, 2]
         dt = np.diff(t) * 1e-9
         velocity = np.concatenate([[0.0], np.cumsum(0.5 * (up[1:] + up[:-1]) * dt)])
         velocity += v_mps - velocity[np.searchsorted(t, v_ns)]
         height = np.concatenate([[0.0], np.cumsum(0.5 * (velocity[1:] + velocity[:-1]) * dt)])
         return float(height[np.searchsorted(t, t1_ns)] - height[np.searchsorted(t, t0_ns)])
+
+    def still(self, t_ns: int, window_s: float, max_accel_mps2: float) -> bool:
+        """Whether the pelvis stood still over the ``window_s`` up to ``t_ns`` (LiDAR clock): its acceleration
+        (gravity removed, in the suit's gravity-aligned frame) under ``max_accel_mps2`` at every ``_STEP_NS``
+        (a zero-velocity detector); False where unknown."""
+        t = np.arange(int(t_ns) - int(window_s * 1e9), int(t_ns) + 1, _STEP_NS, dtype=np.int64)
+        accel = self._acceleration(t)
+        return accel is not None and bool((np.linalg.norm(accel, axis=1) < max_accel_mps2).all())
+
+    def _acceleration(self, t_ns: np.ndarray) -> np.ndarray | None:
+        """The pelvis's acceleration (N, 3; m/s^2) in the suit's gravity-aligned frame at LiDAR-clock times
+        ``t_ns`` (N,): its specific force turned into that frame, less gravity; None if any is unknown."""
+        if self.offset_ns is None:
+            return None
+        stamp = t_ns + self.offset_ns
+        quat = self._sync.orientations(_PELVIS, stamp)
+        force = self._sync.specific_forces(_PELVIS, stamp)
+        if not (np.isfinite(quat).all() and np.isfinite(force).all()):
+            return None
+        accel = np.einsum("nab,nb->na", quat_to_matrix(quat), force)
+        accel[:, 2] -= GRAVITY
+        return accel
 
     def __call__(self, t_ns: np.ndarray, ref_ns: int) -> np.ndarray:
         """R_Lref_L (N, 3, 3): the LiDAR at ``t_ns`` in the LiDAR at ``ref_ns``; NaN where unknown."""

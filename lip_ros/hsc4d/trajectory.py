@@ -424,7 +424,8 @@ class TrajectoryPipeline:
             self._resume = None
         previous_pose, previous_ns = self.odometry.pose, (self._stamps[-1] if self._stamps else None)
         anchor = self.odometry.last_registered  # the LiDAR's own motion is measured from there
-        step = self.odometry.register(points, point_ns, ref, self.rotation, self.suit, self.rotation.vertical_shift)
+        step = self.odometry.register(points, point_ns, ref, self.rotation, self.suit, self.rotation.vertical_shift,
+                                      self.rotation.still)
         if not step.registered:
             self.counts[RATE_CAPPED] += 1
         elif step.rejected:
