@@ -59,7 +59,8 @@ def run(seed: int, seconds: float, columns: int, imu: bool, suit: bool) -> dict:
         xyz = np.stack([p["x"][ok], p["y"][ok], p["z"][ok]], 1).astype(np.float64)
         t0 = time.perf_counter()
         step = lidar_odometry.register(xyz, frame.stamp_ns + p["t"][ok].astype(np.int64), frame.stamp_ns + half,
-                                       rotation, track, None if rotation is None else rotation.vertical_shift)
+                                       rotation, track, None if rotation is None else rotation.vertical_shift,
+                                       None if rotation is None else rotation.still)
         times.append(1e3 * (time.perf_counter() - t0))
         rejected.append(bool(step.rejected))
         stamps.append(step.stamp_ns)

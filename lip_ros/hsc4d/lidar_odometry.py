@@ -22,13 +22,13 @@ Per sweep (:meth:`LidarOdometry.register`):
    is fitted to the believed registrations of the last ``vertical_window_s``
    with the IMU's own height profile between them, so that the guesses do not
    carry on a climb of their own; while the IMU says the sensor has stood
-   still for ``still_window_s`` (``still``), from no vertical velocity); a registration is not believed (the guess is
-   kept, and the step says why) when it moves the guess farther than
-   ``max_correction_m``, or when its horizontal motion differs from the suit's
-   by more than ``speed_ratio - 1`` times the suit's plus ``speed_floor_mps``
-   (the paper's speed rule, online, before a sliding registration reaches the
-   map); the map is kiss-icp's voxel hash map of deskewed points, bounded by
-   ``max_range_m`` round the sensor.
+   still for ``still_window_s`` (``still``), from no vertical velocity); a
+   registration is not believed (the guess is kept, and the step says why)
+   when it moves the guess farther than ``max_correction_m``, or when its
+   horizontal motion differs from the suit's by more than ``speed_ratio - 1``
+   times the suit's plus ``speed_floor_mps`` (the paper's speed rule, online,
+   before a sliding registration reaches the map); the map is kiss-icp's voxel
+   hash map of deskewed points, bounded by ``max_range_m`` round the sensor.
 
 Sweeps are registered at most ``max_rate_hz`` times a second (10: at 20 Hz
 every other one); a sweep in between keeps the initial guess of step 3
