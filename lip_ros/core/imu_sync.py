@@ -210,6 +210,11 @@ class SyncResult:
         )
 
 
+def _linear(columns: slice) -> Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+    """A blend for :meth:`ImuSynchronizer._bracketed`: the rows' ``columns`` interpolated linearly."""
+    return lambda a, b, w: (1.0 - w)[:, None] * a[:, columns] + w[:, None] * b[:, columns]
+
+
 def _slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Shortest-arc slerp of unit quaternions (T, 4) at weights (T,), normalised, w >= 0."""
     dot = np.sum(q0 * q1, axis=1)
@@ -416,8 +421,12 @@ class ImuSynchronizer:
     def specific_forces(self, name: str, stamp_ns: np.ndarray) -> np.ndarray:
         """Specific force (T, 3) in the sensor frame of ``name`` interpolated linearly at the measurement times of
         samples stamped ``stamp_ns`` (T,), NaN where the buffer does not bracket them (nothing is held)."""
-        return self._bracketed(name, stamp_ns, 3,
-                               lambda a, b, w: (1.0 - w)[:, None] * a[:, _ACCEL] + w[:, None] * b[:, _ACCEL])
+        return self._bracketed(name, stamp_ns, 3, _linear(_ACCEL))
+
+    def angular_rates(self, name: str, stamp_ns: np.ndarray) -> np.ndarray:
+        """Angular rate (T, 3; rad/s) in the sensor frame of ``name`` interpolated linearly at the measurement times
+        of samples stamped ``stamp_ns`` (T,), NaN where the buffer does not bracket them (nothing is held)."""
+        return self._bracketed(name, stamp_ns, 3, _linear(_GYRO))
 
     def _bracketed(self, name: str, stamp_ns: np.ndarray, width: int,
                    blend: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:

@@ -73,9 +73,10 @@ SweepRotation = Callable[[np.ndarray, int], np.ndarray]
 #: vertical velocity was ``v_mps`` at ``v_ns`` (e.g. the pelvis IMU's acceleration integrated); None if unknown.
 VerticalShift = Callable[[int, float, int, int], "float | None"]
 
-#: ``still(t_ns, window_s, max_accel_mps2)``: whether the sensor stood still over the ``window_s`` up to ``t_ns``,
-#: its acceleration under ``max_accel_mps2`` (e.g. the pelvis IMU's); False if unknown.
-StillDetector = Callable[[int, float, float], bool]
+#: ``still(t_ns, window_s, max_accel_mps2, max_rate_rad_s)``: whether the sensor stood still over the ``window_s``
+#: up to ``t_ns``, its acceleration under ``max_accel_mps2`` and its angular rate under ``max_rate_rad_s`` (e.g. the
+#: pelvis IMU's); False if unknown.
+StillDetector = Callable[[int, float, float, float], bool]
 
 
 @dataclass(frozen=True)
@@ -124,18 +125,22 @@ class OdometryConfig:
     # development captures' ATE went from 4.4 to 5.9 cm (docs/hsc4d/trajectory.md, "Rig variants")
     vertical_window_s: float = 0.5
     # with the IMU's vertical motion and a still detector: a sensor whose acceleration stayed under still_accel_mps2
-    # for the last still_window_s is taken to have no vertical velocity (a zero-velocity update). A standing wearer's
-    # sweeps were not believed 14 times in a row after a jump's landing (a hip LiDAR tilted up 45 deg sees 180 points,
-    # ICP slides sideways) and the guesses sank at the velocity fitted over the landing, 15 cm in 1.4 s
+    # and angular rate under still_rate_rad_s for the last still_window_s is taken to have no vertical velocity (a
+    # zero-velocity update). A standing wearer's sweeps were not believed 14 times in a row after a jump's landing (a
+    # hip LiDAR tilted up 45 deg sees 180 points, ICP slides sideways) and the guesses sank at the velocity fitted
+    # over the landing, 15 cm in 1.4 s. On the rig 0.3-0.6 m/s^2 and 0.1-0.4 rad/s find the same still times (a
+    # standing person's sway is estimated at a few hundredths of either; docs/hsc4d/odometry.md)
     still_window_s: float = 0.3
     still_accel_mps2: float = 0.3
+    still_rate_rad_s: float = 0.2
 
     def __post_init__(self) -> None:
         if not (0.0 < self.voxel_size_m and 0.0 <= self.min_range_m < self.max_range_m
                 and self.max_points_per_voxel > 0 and self.initial_threshold_m > 0.0 and self.max_iterations > 0
                 and self.convergence > 0.0 and self.threads >= 0 and self.speed_ratio >= 1.0
                 and self.speed_floor_mps >= 0.0 and 0.0 <= self.gravity_gain <= 1.0 and self.max_rate_hz >= 0.0
-                and self.vertical_window_s >= 0.0 and self.still_window_s > 0.0 and self.still_accel_mps2 > 0.0):
+                and self.vertical_window_s >= 0.0 and self.still_window_s > 0.0 and self.still_accel_mps2 > 0.0
+                and self.still_rate_rad_s > 0.0):
             raise ValueError(f"invalid {self}")
 
     def kiss(self) -> KISSConfig:
@@ -390,7 +395,7 @@ class LidarOdometry:
             if vertical is not None:  # ... carried on by the IMU's acceleration
                 known = None
                 c = self.config
-                if still is not None and still(stamp_ns, c.still_window_s, c.still_accel_mps2):
+                if still is not None and still(stamp_ns, c.still_window_s, c.still_accel_mps2, c.still_rate_rad_s):
                     known = (stamp_ns, 0.0)
                 elif self._believed and self._believed[-1][0] != self._registered_ns:  # the last one not believed
                     known = self._vertical_velocity(vertical, self.pose[:3, :3] @ up, stamp_ns)

@@ -74,13 +74,24 @@ class PelvisRotation:
         height = np.concatenate([[0.0], np.cumsum(0.5 * (velocity[1:] + velocity[:-1]) * dt)])
         return float(height[np.searchsorted(t, t1_ns)] - height[np.searchsorted(t, t0_ns)])
 
-    def still(self, t_ns: int, window_s: float, max_accel_mps2: float) -> bool:
-        """Whether the pelvis stood still over the ``window_s`` up to ``t_ns`` (LiDAR clock): its acceleration
-        (gravity removed, in the suit's gravity-aligned frame) under ``max_accel_mps2`` at every ``_STEP_NS``
-        (a zero-velocity detector); False where unknown."""
-        t = np.arange(int(t_ns) - int(window_s * 1e9), int(t_ns) + 1, _STEP_NS, dtype=np.int64)
-        accel = self._acceleration(t)
-        return accel is not None and bool((np.linalg.norm(accel, axis=1) < max_accel_mps2).all())
+    def still(self, t_ns: int, window_s: float, max_accel_mps2: float, max_rate_rad_s: float) -> bool:
+        """Whether the pelvis stood still over the ``window_s`` up to ``t_ns`` (LiDAR clock), a zero-velocity
+        detector (after Skog et al. 2010, SHOE) on the IMU's own readings: at every ``_STEP_NS`` its specific force
+        within ``max_accel_mps2`` of gravity along the window's mean direction and its angular rate under
+        ``max_rate_rad_s``; False where unknown. The suit's orientation is not used, so its tilt error does not
+        count as acceleration (1 deg leaks 0.17 m/s^2 of gravity sideways); the rate catches a wearer turning
+        while moving on steadily, whose acceleration turns with the pelvis."""
+        if self.offset_ns is None:
+            return False
+        stamp = np.arange(int(t_ns) - int(window_s * 1e9), int(t_ns) + 1, _STEP_NS, dtype=np.int64) + self.offset_ns
+        force = self._sync.specific_forces(_PELVIS, stamp)
+        rate = self._sync.angular_rates(_PELVIS, stamp)
+        mean = force.mean(axis=0)
+        size = float(np.linalg.norm(mean))
+        if not (np.isfinite(size) and size > 0.0 and np.isfinite(rate).all()):
+            return False
+        return bool((np.linalg.norm(force - GRAVITY / size * mean, axis=1) < max_accel_mps2).all()
+                    and (np.linalg.norm(rate, axis=1) < max_rate_rad_s).all())
 
     def _acceleration(self, t_ns: np.ndarray) -> np.ndarray | None:
         """The pelvis's acceleration (N, 3; m/s^2) in the suit's gravity-aligned frame at LiDAR-clock times

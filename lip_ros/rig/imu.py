@@ -198,6 +198,12 @@ class ImuNoise:
         """DOT-like sensor errors, but frame-counter stamps (no jitter) and no drops, as a suit's export."""
         return replace(cls(), stamp_jitter=0.0, drop_prob=0.0)
 
+    def scaled(self, factor: float) -> ImuNoise:
+        """These errors ``factor`` times as large (noise, biases, their walks, tilt and heading errors); stamps,
+        drops and the tilt's correlation time unchanged."""
+        fixed = ("tilt_tau", "stamp_jitter", "latency_jitter", "drop_prob")
+        return replace(self, **{k: v * factor for k, v in vars(self).items() if k not in fixed})
+
 
 @dataclass(eq=False)
 class ImuStream:

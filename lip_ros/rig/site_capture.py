@@ -57,10 +57,14 @@ class SiteCaptureConfig:
     # the rate of the suit's IMUs and of its odometry (``odometry.rate_hz`` is overridden): the contract's 100 Hz,
     # or a variant (the method is told 100 Hz unless its ``suit_rate_hz`` is set)
     suit_rate_hz: float = SUIT_RATE_HZ
+    # the suit's IMU errors (noise, biases, tilt and heading errors) this many times the DOT-like ones
+    # (ImuNoise.suit(): tilt error 0.5 deg, bias 0.02 m/s^2): a variant for a suit worse than the rig's
+    suit_noise_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if (self.columns not in (512, 1024, 2048) or self.rate_hz not in (10.0, 20.0) or self.seconds <= 0
-                or not 0.0 <= self.mount_tilt_up_deg <= 60.0 or not 20.0 <= self.suit_rate_hz <= 1000.0):
+                or not 0.0 <= self.mount_tilt_up_deg <= 60.0 or not 20.0 <= self.suit_rate_hz <= 1000.0
+                or self.suit_noise_scale < 0.0):
             raise ValueError(f"invalid {self}")
 
     def as_dict(self) -> dict:
@@ -133,7 +137,7 @@ class SiteCapture:
 
     def suit_streams(self) -> dict[str, ImuStream]:
         """The 17 suit IMUs over the capture, stamped on the suit's clock."""
-        noise = ImuNoise.suit() if self.config.imu_noise else ImuNoise.none()
+        noise = ImuNoise.suit().scaled(self.config.suit_noise_scale) if self.config.imu_noise else ImuNoise.none()
         streams = simulate_imus(self.motion, self.suit, 0.0, self.motion.duration, noise,
                                 np.random.default_rng([self.config.seed, 302]))
         for s in streams.values():

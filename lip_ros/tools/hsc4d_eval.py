@@ -24,7 +24,8 @@ Writes DIR/metrics.json and DIR/trajectories.png (per capture: top view and
 height over time, the five trajectories against the truth). A capture the
 live pipeline does not pose sweep by sweep (the jump not synced, ...) is
 reported as lost and left out of the means; the exit status is then 1.
-Rig variants: ``--mount-tilt-up DEG`` (the hip LiDAR's true tilt), ``--suit-rate HZ`` (the suit's rate).
+Rig variants: ``--mount-tilt-up DEG`` (the hip LiDAR's true tilt), ``--suit-rate HZ`` (the suit's rate),
+``--suit-noise-scale X`` (the suit's IMU errors X times the rig's).
 Held-out seeds: 1000 and up (development used 0-20).
 """
 
@@ -130,6 +131,9 @@ def main(argv: list[str] | None = None) -> int:
                              "told the nominal 30 deg")
     parser.add_argument("--suit-rate", type=float, default=SiteCaptureConfig.suit_rate_hz, metavar="HZ",
                         help="a rig variant: the suit's IMUs and odometry at this rate; the method is told 100 Hz")
+    parser.add_argument("--suit-noise-scale", type=float, default=SiteCaptureConfig.suit_noise_scale, metavar="X",
+                        help="a rig variant: the suit's IMU errors (noise, biases, tilt and heading errors) X times "
+                             "the rig's DOT-like ones")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     config = TrajectoryConfig(odometry=OdometryConfig(max_rate_hz=args.max_registration_hz))
@@ -139,7 +143,8 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=args.seconds, columns=args.columns,
                                                 rate_hz=args.rate, mount_tilt_up_deg=args.mount_tilt_up,
-                                                suit_rate_hz=args.suit_rate))
+                                                suit_rate_hz=args.suit_rate,
+                                                suit_noise_scale=args.suit_noise_scale))
 
         def progress(k: int, n: int, seed: int = seed) -> None:
             if k % 100 == 0 or k == n - 1:

@@ -83,6 +83,24 @@ def test_interpolation_is_exact_on_analytic_signals():
     np.testing.assert_allclose(at.quat[2], q * np.sign(q[3]), atol=1e-15)
 
 
+def test_the_buffers_queries_are_exact_on_analytic_signals():
+    """The online buffer's orientations, specific forces and angular rates at arbitrary stamps between samples are
+    the analytic signals (slerp and linear interpolation are exact on them); NaN outside the held samples."""
+    rng = np.random.default_rng(2)
+    s = series(jittered(100.0, 1.0, rng), 3.0, rng)
+    sync = ImuSynchronizer(["a"], SyncConfig(capacity=200, max_gap_ns=50 * MS))
+    for sample in samples(s):
+        assert sync.add("a", sample) is None
+    t = np.sort(rng.integers(int(s.stamp_ns[0]), int(s.stamp_ns[-1]), 30))
+    quat, gyro, accel = analytic((t - T0) * 1e-9, 3.0)
+    got = sync.orientations("a", t)
+    np.testing.assert_allclose(got * np.sign(got[:, 3:]), quat * np.sign(quat[:, 3:]), atol=1e-12)
+    np.testing.assert_allclose(sync.angular_rates("a", t), gyro, atol=1e-12)
+    np.testing.assert_allclose(sync.specific_forces("a", t), accel, atol=1e-12)
+    outside = np.array([s.stamp_ns[0] - 20 * MS, s.stamp_ns[-1] + 20 * MS])
+    assert np.isnan(sync.angular_rates("a", outside)).all() and np.isnan(sync.specific_forces("a", outside)).all()
+
+
 def test_out_of_order_duplicates_and_invalid_samples():
     rng = np.random.default_rng(2)
     clean = series(jittered(60.0, 1.0, rng), 2.0)

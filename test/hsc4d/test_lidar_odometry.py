@@ -106,24 +106,32 @@ def test_the_pelvis_imu_carries_the_height_through_the_jump(noise):
     assert PelvisRotation(HipMountPrior().R_M_L).vertical_shift(int(mids[0]), 0.0, int(mids[0]), int(mids[1])) is None
 
 
-def test_the_pelvis_imu_tells_when_the_wearer_stands_still():
-    """Seed 3, the suit's noise, every 50 ms: the pelvis is still (its acceleration under 0.3 m/s^2 for 0.3 s) all
-    through the A-pose once 0.35 s of it have passed, and at no more than a tenth of the jump's times (measured 8 %,
-    its last 0.2 s, standing again after the landing); wherever it is, the true pelvis moves up or down slower than
-    3 cm/s (measured 1.9); nothing before the suit's offset."""
-    capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
-    rotation = _pelvis_rotation(capture, HipMountPrior().R_M_L, ImuNoise())
+@pytest.mark.parametrize("noise", [ImuNoise(), ImuNoise(tilt=float(np.deg2rad(5.0)), accel_bias=0.2)],
+                         ids=["suit", "tilt-5deg-bias-0.2"])
+def test_the_pelvis_imu_tells_when_the_wearer_stands_still(noise: ImuNoise):
+    """Seed 0 (30 s), every 50 ms, with the suit's noise and with an IMU 10 times worse (tilt error 5 deg, bias
+    0.2 m/s^2; session 30's detector, on the acceleration in the suit's frame, found no A-pose still from 2 deg):
+    the pelvis is still (0.3 s under 0.3 m/s^2 and 0.2 rad/s) all through the A-pose once 0.35 s of it have passed,
+    at no more than 15 % of the jump's times (measured 10 %: standing again after the landing); wherever it is,
+    the true pelvis moves slower than 3 cm/s (measured 2.0); nothing before the suit's offset. Without the rate
+    test the wearer turning while climbing a stair flight steadily counts as still (12-16 s, at up to 0.68 m/s)."""
+    capture = SiteCapture(SiteCaptureConfig(seed=0, seconds=30.0))
+    rotation = _pelvis_rotation(capture, HipMountPrior().R_M_L, noise)
     phases = {name: ((a - capture.epoch_ns) * 1e-9, (b - capture.epoch_ns) * 1e-9)
               for name, a, b in capture.phases_ns()}
-    t = np.arange(0.35, 13.5, 0.05)
-    still = np.array([rotation.still(int(capture.epoch_ns + s * 1e9), 0.3, 0.3) for s in t])
+    t = np.arange(0.35, 29.5, 0.05)
+    config = OdometryConfig()
+    limits = (config.still_window_s, config.still_accel_mps2, config.still_rate_rad_s)
+    still = np.array([rotation.still(int(capture.epoch_ns + s * 1e9), *limits) for s in t])
     h = 1e-3
-    vz = (capture.truth(t + h).pelvis[:, 2] - capture.truth(t - h).pelvis[:, 2]) / (2 * h)
+    speed = np.linalg.norm(capture.truth(t + h).pelvis - capture.truth(t - h).pelvis, axis=1) / (2 * h)
     in_a_pose = t < phases["a_pose"][1]
     in_jump = (t >= phases["jump"][0]) & (t < phases["jump"][1])
-    assert still[in_a_pose].all() and still[in_jump].mean() <= 0.1
-    assert np.abs(vz[still]).max() < 0.03
-    assert not PelvisRotation(HipMountPrior().R_M_L).still(int(capture.epoch_ns + 1e9), 0.3, 0.3)
+    assert still[in_a_pose].all() and still[in_jump].mean() <= 0.15
+    assert speed[still].max() < 0.03
+    turning = np.array([rotation.still(int(capture.epoch_ns + s * 1e9), *limits[:2], np.inf) for s in t])
+    assert speed[turning].max() > 0.2
+    assert not PelvisRotation(HipMountPrior().R_M_L).still(int(capture.epoch_ns + 1e9), *limits)
 
 
 def _through_the_jump() -> tuple[PelvisRotation, np.ndarray, np.ndarray]:
