@@ -48,6 +48,7 @@ from typing import Protocol
 import numpy as np
 
 from lip_ros.core.clock import CLOCK_STEP_NS, stepped_back
+from lip_ros.core.rotations import axis_angle_to_matrix
 
 __all__ = [
     "SensorStatus",
@@ -427,6 +428,39 @@ class ImuSynchronizer:
         """Angular rate (T, 3; rad/s) in the sensor frame of ``name`` interpolated linearly at the measurement times
         of samples stamped ``stamp_ns`` (T,), NaN where the buffer does not bracket them (nothing is held)."""
         return self._bracketed(name, stamp_ns, 3, _linear(_GYRO))
+
+    def relative_rotations(self, name: str, stamp_ns: np.ndarray, ref_ns: int) -> np.ndarray:
+        """R_Sref_S (T, 3, 3) of ``name``: its angular rate integrated from the measurement time of a sample stamped
+        ``ref_ns`` to those of samples stamped ``stamp_ns`` (T,) (the rate interpolated linearly, the turn of each
+        step about its mean rate), so that its orientation output's errors (a fusion filter's tilt and heading
+        corrections) do not enter; NaN where the buffer does not bracket a time or the samples between leave a gap
+        over ``max_gap_ns``."""
+        stamps, rows = self._buffers[name].stamps, self._buffers[name].rows
+        times = np.append(np.asarray(stamp_ns, dtype=np.int64), np.int64(ref_ns)) - self._latency_ns[name]
+        out = np.full((times.size - 1, 3, 3), np.nan)
+        if not stamps.size:
+            return out
+        before, _, ok = _bracket(stamps, times, self.config)
+        if not ok[-1]:
+            return out
+        first, last = int(before[ok].min()), min(int(before[ok].max()) + 1, stamps.size - 1)
+        t, gyro = stamps[first : last + 1], rows[first : last + 1, _GYRO]
+        dt = np.diff(t) * 1e-9
+        step = axis_angle_to_matrix(0.5 * (gyro[1:] + gyro[:-1]) * dt[:, None])
+        turned = np.empty((t.size, 3, 3))  # R_S0_S at each sample, S0 the first's
+        turned[0] = np.eye(3)
+        for k in range(step.shape[0]):
+            turned[k + 1] = turned[k] @ step[k]
+        gaps = np.concatenate([[0], np.cumsum(np.diff(t) > self.config.max_gap_ns)])  # gaps before each sample
+        k = np.clip(before - first, 0, t.size - 1)
+        nxt = np.minimum(k + 1, t.size - 1)
+        span = np.maximum(t[nxt] - t[k], 1) * 1e-9
+        tau = (times - t[k]) * 1e-9
+        rate = gyro[k] + (gyro[nxt] - gyro[k]) * np.clip(tau / span, 0.0, 1.0)[:, None]
+        at = turned[k] @ axis_angle_to_matrix(0.5 * (gyro[k] + rate) * tau[:, None])  # R_S0_S at each time
+        good = ok[:-1] & (gaps[k[:-1]] == gaps[k[-1]])
+        out[good] = np.einsum("ba,nbc->nac", at[-1], at[:-1][good])
+        return out
 
     def _bracketed(self, name: str, stamp_ns: np.ndarray, width: int,
                    blend: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:

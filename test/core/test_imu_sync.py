@@ -101,6 +101,29 @@ def test_the_buffers_queries_are_exact_on_analytic_signals():
     assert np.isnan(sync.angular_rates("a", outside)).all() and np.isnan(sync.specific_forces("a", outside)).all()
 
 
+def test_the_angular_rate_integrated_is_the_turn_between_two_times():
+    """A sensor turning at a constant rate about a fixed axis of its own (its orientation output left constant, as
+    if its filter had frozen): the rate integrated from one stamp to others between samples is exactly that turn
+    (1e-12), both ways; NaN across a gap over ``max_gap_ns`` and outside the held samples."""
+    rng = np.random.default_rng(3)
+    stamps = jittered(100.0, 1.0, rng)
+    stamps = stamps[(stamps < T0 + 400 * MS) | (stamps > T0 + 500 * MS)]  # a 0.1 s gap
+    rate = 2.0 * AXIS
+    s = ImuSeries(stamps, np.tile([0.0, 0.0, 0.0, 1.0], (stamps.size, 1)), np.tile(rate, (stamps.size, 1)),
+                  np.tile([0.0, 0.0, 9.81], (stamps.size, 1)))
+    sync = ImuSynchronizer(["a"], SyncConfig(capacity=200, max_gap_ns=50 * MS))
+    for sample in samples(s):
+        assert sync.add("a", sample) is None
+    ref = T0 + 205 * MS + 300_000
+    t = np.array([T0 + 100 * MS + 1, ref, T0 + 333 * MS, int(stamps[30]), T0 + 450 * MS, T0 + 700 * MS,
+                  int(stamps[0]) - 1])
+    got = sync.relative_rotations("a", t, ref)
+    expected = axis_angle_to_matrix(np.outer((t[:4] - ref) * 1e-9, rate))
+    np.testing.assert_allclose(got[:4], expected, atol=1e-12)
+    assert np.isnan(got[4:]).all()
+    assert np.isnan(sync.relative_rotations("a", t[:1], T0 + 450 * MS)).all()
+
+
 def test_out_of_order_duplicates_and_invalid_samples():
     rng = np.random.default_rng(2)
     clean = series(jittered(60.0, 1.0, rng), 2.0)

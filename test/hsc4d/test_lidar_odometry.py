@@ -134,6 +134,27 @@ def test_the_pelvis_imu_tells_when_the_wearer_stands_still(noise: ImuNoise):
     assert not PelvisRotation(HipMountPrior().R_M_L).still(int(capture.epoch_ns + 1e9), *limits)
 
 
+def test_the_sweeps_rotation_is_the_pelvis_imus_rate_integrated():
+    """Seed 3's walk (7-29 s, the suit's noise four times the DOT's: its orientations' tilt error 2 deg): the
+    LiDAR's rotation from each sweep's middle to 50 ms before and 100 ms after it, against the rotation of the
+    noise-free suit's orientations, within 0.05 deg at the median and 0.1 deg at the 99th percentile (measured
+    0.020, 0.046); taken from the noisy suit's orientations instead it was 0.30 and 0.80 deg off (0.07 and 0.20
+    with the rig's own suit): at 20 m, 10 and 28 cm."""
+    capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=30.0))
+    R_M_L = HipMountPrior().R_M_L
+    exact = _pelvis_rotation(capture, R_M_L, ImuNoise.none())
+    noisy = _pelvis_rotation(capture, R_M_L, ImuNoise.suit().scaled(4.0))
+    error = []
+    for ref in capture.epoch_ns + np.arange(7_000_000_000, 29_000_000_000, 100_000_000):
+        t = np.array([ref - 50_000_000, ref + 100_000_000])
+        true = exact.rotation_of_lidar(np.append(t, ref))
+        true = np.einsum("ba,nbc->nac", true[-1], true[:-1])
+        error += list(np.linalg.norm(matrix_to_axis_angle(np.einsum("nba,nbc->nac", true, noisy(t, int(ref)))),
+                                     axis=1))
+    error = np.degrees(error)
+    assert np.median(error) < 0.05 and np.percentile(error, 99) < 0.1
+
+
 def _through_the_jump() -> tuple[PelvisRotation, np.ndarray, np.ndarray]:
     """Seed 3's suit (its noise) in a PelvisRotation, sweep middles every 0.1 s from 0.6 s before its jump to 0.2 s
     after it (ns) and the true pelvis heights then (m)."""

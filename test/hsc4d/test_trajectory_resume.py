@@ -100,7 +100,10 @@ def test_a_trajectory_resumed_from_its_file_goes_on_without_another_jump(capture
     assert 2 <= dropped <= 4 and len(after) == capture.num_frames - CUT - GAP - dropped  # every sweep after posed
     shift = np.array([np.linalg.norm(after[t] - whole[t]) for t in sorted(after)])
     print(f"resumed vs uninterrupted: median {np.median(shift) * 100:.1f} cm, max {shift.max() * 100:.1f} cm")
-    assert np.median(shift) < 0.05 and shift.max() < 0.12  # measured 3.1 and 7.6 cm
+    # measured 0.9 and 4.2 cm. The pelvis climbs stairs through the gap, 0.65 m higher than the suit's odometry
+    # predicts: registered in one pass (which pairs points only within 0.3 m) it went 0.44 m of it and the trajectory
+    # settled 28 cm high; registered until it settles (lidar_odometry._GAP_PASSES) it does not
+    assert np.median(shift) < 0.03 and shift.max() < 0.08
 
 
 def test_a_resume_file_is_checked(tmp_path):
