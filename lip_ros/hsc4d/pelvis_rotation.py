@@ -7,9 +7,12 @@ R_M_L the mounting. Between two times only the relative rotation matters,
 R_Lref_L(t) = R_M_L^T R_Mref_M(t) R_M_L, so I's unknown heading cancels, and an
 error of the mounting only turns the rotation axis a little; R_Mref_M is the
 IMU's angular rate integrated, which the orientation output's own errors do not
-reach. The suit's samples are stamped on its own clock: they are used once the
-offset is known (:meth:`PelvisRotation.set_offset`, from the jump), from a
-bounded buffer (:class:`lip_ros.core.imu_sync.ImuSynchronizer`).
+reach (the rate taken in the frame whose orientation the message gives, as
+REP 145 has sensor_msgs/Imu: a driver that reports the segment's orientation
+must report the rate in the segment's frame too). The suit's samples are
+stamped on its own clock: they are used once the offset is known
+(:meth:`PelvisRotation.set_offset`, from the jump), from a bounded buffer
+(:class:`lip_ros.core.imu_sync.ImuSynchronizer`).
 """
 
 from __future__ import annotations
