@@ -25,8 +25,9 @@ Per sweep (:meth:`LidarOdometry.register`):
    still for ``still_window_s`` (``still``), from no vertical velocity); a
    registration is not believed (the guess is kept, and the step says why)
    when it moves the guess farther than ``max_correction_m``, or when its
-   horizontal motion differs from the suit's by more than ``speed_ratio - 1``
-   times the suit's plus ``speed_floor_mps`` (the paper's speed rule, online,
+   horizontal motion since the newest believed registration differs from the
+   suit's by more than ``speed_ratio - 1`` times the suit's plus
+   ``speed_floor_mps`` (the paper's speed rule, online,
    before a sliding registration reaches the map), or, right after a believed
    one, when its height is farther from the IMU's vertical motion since the
    newest believed one than ``vertical_gate_m`` plus ``vertical_gate_mps`` per
@@ -102,9 +103,10 @@ class OdometryConfig:
     # is kept): with the IMU's rotation a sweep's guess is good to a few cm, and a jump of decimetres is ICP
     # sliding along a direction the scene does not pin down
     max_correction_m: float = 0.3
-    # with the suit: a registration whose horizontal motion differs from the suit's by more than (speed_ratio - 1)
-    # times the suit's speed plus speed_floor_mps is not believed (the paper marks LiDAR poses faster than 1.2-2x
-    # the IMU's as outliers; a difference also catches sliding backwards or sideways)
+    # with the suit: a registration whose horizontal motion since the newest believed one differs from the suit's
+    # over that time by more than (speed_ratio - 1) times the suit's speed plus speed_floor_mps is not believed (the
+    # paper marks LiDAR poses faster than 1.2-2x the IMU's as outliers; a difference also catches sliding backwards
+    # or sideways)
     speed_ratio: float = 1.5
     speed_floor_mps: float = 0.3
     # with gravity known in O (set_gravity) and the suit: each pose's tilt is turned this fraction of the way to the
@@ -439,9 +441,9 @@ class LidarOdometry:
         """The sweep a registration's motion is measured from for the speed rule, (stamp ns, T_O_L): the newest
         believed registration; before one, the last registered sweep (else the last sweep). Not the last registered
         one: after a registration not believed that sweep stands at its guess, whose own error the next registration
-        would take back as motion; a standing wearer's guess 2-3 cm off after a jump's landing had every
-        registration after it refused for 0.9 s (3 cm in 0.1 s is the 0.3 m/s floor), the map built on the guess.
-        From the believed one the allowance grows with the time since."""
+        would take back as motion; a standing wearer's guess 2-7 cm off after a jump's landing had every
+        registration after it refused until the walk (10-14 in a row: 3 cm in 0.1 s is the 0.3 m/s floor), the map
+        built on the guesses. From the believed one the allowance grows with the time since."""
         if self._believed:
             return self._believed[-1][0], self._believed_pose
         if self._registered_ns is not None:
