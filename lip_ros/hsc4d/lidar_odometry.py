@@ -25,8 +25,9 @@ Per sweep (:meth:`LidarOdometry.register`):
    still for ``still_window_s`` (``still``), from no vertical velocity); a
    registration is not believed (the guess is kept, and the step says why)
    when it moves the guess farther than ``max_correction_m``, or when its
-   horizontal motion differs from the suit's by more than ``speed_ratio - 1``
-   times the suit's plus ``speed_floor_mps`` (the paper's speed rule, online,
+   horizontal motion since the newest believed registration differs from the
+   suit's by more than ``speed_ratio - 1`` times the suit's plus
+   ``speed_floor_mps`` (the paper's speed rule, online,
    before a sliding registration reaches the map), or, right after a believed
    one, when its height is farther from the IMU's vertical motion since the
    newest believed one than ``vertical_gate_m`` plus ``vertical_gate_mps`` per
@@ -102,9 +103,10 @@ class OdometryConfig:
     # is kept): with the IMU's rotation a sweep's guess is good to a few cm, and a jump of decimetres is ICP
     # sliding along a direction the scene does not pin down
     max_correction_m: float = 0.3
-    # with the suit: a registration whose horizontal motion differs from the suit's by more than (speed_ratio - 1)
-    # times the suit's speed plus speed_floor_mps is not believed (the paper marks LiDAR poses faster than 1.2-2x
-    # the IMU's as outliers; a difference also catches sliding backwards or sideways)
+    # with the suit: a registration whose horizontal motion since the newest believed one differs from the suit's
+    # over that time by more than (speed_ratio - 1) times the suit's speed plus speed_floor_mps is not believed (the
+    # paper marks LiDAR poses faster than 1.2-2x the IMU's as outliers; a difference also catches sliding backwards
+    # or sideways)
     speed_ratio: float = 1.5
     speed_floor_mps: float = 0.3
     # with gravity known in O (set_gravity) and the suit: each pose's tilt is turned this fraction of the way to the
@@ -263,6 +265,7 @@ class LidarOdometry:
         self._registered_ns: int | None = None  # of the last sweep registered ...
         self._registered_pose = np.eye(4)  # ... and its pose
         self._believed: deque[tuple[int, np.ndarray]] = deque(maxlen=_MAX_BELIEVED)  # (stamp, position in O)
+        self._believed_pose = np.eye(4)  # T_O_L of the newest believed registration
         self.gravity: np.ndarray | None = None  #: gravity's up in O, once known
         self._start_gap_s = 0.0  # how long the first sweep's pose was predicted for (start_at)
 
@@ -364,12 +367,12 @@ class LidarOdometry:
         max_correction_m = c.max_correction_m + _GAP_DRIFT_MPS * max(0.0, gap_s - _MAX_EXTRAPOLATION_S)
         if correction_m > max_correction_m:
             rejected = f"correction {correction_m:.2f} m > {max_correction_m:.2f} m"
-        elif suit_motion is not None:  # the motion since the last registered sweep (the last, without a cap)
-            since_ns = self._stamp_ns if self._registered_ns is None else self._registered_ns
+        elif suit_motion is not None:  # the motion since the newest believed registration (_speed_reference)
+            since_ns, since_pose = self._speed_reference()
             if since_ns != self._stamp_ns:
                 suit_motion = suit.horizontal_motion(since_ns, stamp_ns)
             if suit_motion is not None:
-                rejected = self._speed_rule(np.linalg.inv(self._registered_pose) @ pose, *suit_motion,
+                rejected = self._speed_rule(np.linalg.inv(since_pose) @ pose, *suit_motion,
                                             (stamp_ns - since_ns) * 1e-9)
         if not rejected and vertical is not None and up is not None and self._last_believed:
             rejected = self._vertical_rule(pose[:3, 3] @ up, vertical, up, stamp_ns)
@@ -384,6 +387,7 @@ class LidarOdometry:
         self._registered_ns, self._registered_pose = stamp_ns, pose
         if not rejected:
             self._believed.append((stamp_ns, pose[:3, 3].copy()))
+            self._believed_pose = pose
         self.pose, self._stamp_ns = pose, stamp_ns
         return OdometryStep(stamp_ns, pose, frame, len(source), sigma, correction_m,
                             float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected, tilt)
@@ -432,6 +436,19 @@ class LidarOdometry:
                 rise = rise if carried is None else carried
             shift = horizontal + rise * up
         return self.pose @ _se3(turn, shift), suit_motion
+
+    def _speed_reference(self) -> tuple[int, np.ndarray]:
+        """The sweep a registration's motion is measured from for the speed rule, (stamp ns, T_O_L): the newest
+        believed registration; before one, the last registered sweep (else the last sweep). Not the last registered
+        one: after a registration not believed that sweep stands at its guess, whose own error the next registration
+        would take back as motion; a standing wearer's guess 2-7 cm off after a jump's landing had every
+        registration after it refused until the walk (10-14 in a row: 3 cm in 0.1 s is the 0.3 m/s floor), the map
+        built on the guesses. From the believed one the allowance grows with the time since."""
+        if self._believed:
+            return self._believed[-1][0], self._believed_pose
+        if self._registered_ns is not None:
+            return self._registered_ns, self._registered_pose
+        return self._stamp_ns, self.pose
 
     @property
     def _last_believed(self) -> bool:

@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from lip_ros.core.ground_plane import fit_ground_plane
+from lip_ros.core.ground_plane import GroundPlane, fit_ground_plane
 from lip_ros.core.torch_kinematics import axis_angle_to_matrix
 
 __all__ = ["SceneOptimisationConfig", "WindowInput", "WindowResult", "TERMS", "stance_from_suit",
@@ -63,6 +63,11 @@ class SceneOptimisationConfig:
     plane_tolerance_m: float = 0.03  # RANSAC inlier distance
     plane_max_tilt_deg: float = 20.0  # steeper is not ground (ramps are up to 12 deg)
     plane_min_points: int = 8
+    # the sole height takes only planes with plane_min_points inliers within this horizontal distance of the foot:
+    # the ground measured under it, not extrapolated from the search disc's edge (an early map's arc of points half
+    # a metre off, tilted 4-15 deg, put the first window's feet 2-5 cm under their planes; contact keeps every plane:
+    # with this rule for it too a sparsely mapped ground lost planes that helped; docs/hsc4d/optimisation.md)
+    support_radius_m: float = 0.25
     # a foot slower than this (and than the other) stands: the paper's 2 cm a frame at 20 Hz is 0.4 m/s; from the
     # suit's feet that missed the edges of the true stances (sliding 0.91 against 0.86 cm a frame on the development
     # captures, docs/hsc4d/optimisation.md)
@@ -83,8 +88,8 @@ class SceneOptimisationConfig:
     max_wait_s: float = 20.0
 
     def __post_init__(self) -> None:
-        if not (self.window >= 3 and self.radius_m > 0.0 and self.above_m >= 0.0 and self.below_m > 0.0
-                and self.plane_tolerance_m > 0.0 and 0.0 < self.plane_max_tilt_deg < 90.0
+        if not (self.window >= 3 and 0.0 < self.support_radius_m <= self.radius_m and self.above_m >= 0.0
+                and self.below_m > 0.0 and self.plane_tolerance_m > 0.0 and 0.0 < self.plane_max_tilt_deg < 90.0
                 and self.plane_min_points >= 3 and self.stance_speed_mps > 0.0 and self.contact_huber_m > 0.0
                 and all(getattr(self, t) >= 0.0 for t in TERMS) and self.iterations > 0 and self.max_wait_s >= 0.0):
             raise ValueError(f"invalid {self}")
@@ -145,14 +150,17 @@ def stance_from_suit(feet: np.ndarray, t_s: np.ndarray, speed_mps: float) -> np.
 
 
 def fit_foot_planes(feet: np.ndarray, stance: np.ndarray, points: np.ndarray, rng: np.random.Generator,
-                    config: SceneOptimisationConfig) -> np.ndarray:
-    """(N, 2, 4) the ground plane under each standing foot (NaN where none is found or the foot does not stand):
+                    config: SceneOptimisationConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2, 4) the ground plane under each standing foot (NaN where none is found or the foot does not stand)
+    and (N, 2) whether it is measured under the foot (``plane_min_points`` of its inliers within ``support_radius_m``
+    of it, not all at the search disc's edge):
     one plane per stance (a run of frames the same foot stands), fitted to the map's ``points`` (M, 3) within
     ``radius_m`` of the stance's median foot position, from ``above_m`` over it to ``below_m`` under it."""
     c = config
     out = np.full(stance.shape + (4,), np.nan)
+    supported = np.zeros(stance.shape, dtype=bool)
     if not stance.any():
-        return out
+        return out, supported
     standing = feet[stance]  # (K, 3): the map's points near none of them are not looked at again per stance
     lo, hi = standing[:, :2].min(axis=0) - c.radius_m, standing[:, :2].max(axis=0) + c.radius_m
     points = points[((points[:, :2] >= lo) & (points[:, :2] <= hi)).all(axis=1)]
@@ -167,7 +175,15 @@ def fit_foot_planes(feet: np.ndarray, stance: np.ndarray, points: np.ndarray, rn
             if plane is not None:
                 origin = centre + [0.0, 0.0, c.above_m]
                 out[start:stop, foot] = [*plane.normal, plane.offset - plane.normal @ origin]
-    return out
+                supported[start:stop, foot] = _supported(plane, local, c)
+    return out, supported
+
+
+def _supported(plane: GroundPlane, local: np.ndarray, c: SceneOptimisationConfig) -> bool:
+    """Whether ``plane`` has ``plane_min_points`` inliers among ``local`` (M, 3; the foot at the origin's x, y)
+    within ``support_radius_m`` of the foot horizontally."""
+    near = local[np.hypot(local[:, 0], local[:, 1]) <= c.support_radius_m]
+    return int((np.abs(plane.height(near)) < c.plane_tolerance_m).sum()) >= c.plane_min_points
 
 
 def leg_offsets(R0: torch.Tensor, legs: torch.Tensor, bones: torch.Tensor, turns: torch.Tensor) -> torch.Tensor:
@@ -299,7 +315,8 @@ class SequenceResult:
 
 def sole_height(feet: np.ndarray, stance: np.ndarray, planes: np.ndarray) -> float:
     """The foot joint's height above its sole: the median height of the standing feet (N, 2, 3) above their planes
-    (N, 2, 4) (on the still start: the fused height is the LiDAR's there); NaN without any."""
+    (N, 2, 4) (of the first window: the still start and what follows it, before the fused height can drift); NaN
+    without any."""
     ok = stance & np.isfinite(planes).all(-1)
     if not ok.any():
         return float("nan")
@@ -309,7 +326,7 @@ def sole_height(feet: np.ndarray, stance: np.ndarray, planes: np.ndarray) -> flo
 class SceneOptimiser:
     """The optimisation live: frames go in one at a time (:meth:`add`); once a window is :attr:`full`,
     :meth:`optimise` solves its oldest window on the map as it stands then, continuing from the window before.
-    The sole height is measured in the first window optimised (the still start; see :func:`sole_height`) unless
+    The sole height is measured in the first window optimised (from the still start; :func:`sole_height`) unless
     given; until a map shows the ground under that window's feet, its frames wait (up to :attr:`capacity`: then
     the oldest window must be :meth:`drop` ped)."""
 
@@ -364,7 +381,7 @@ class SceneOptimiser:
         """Optimise the oldest window of frames waiting (or all of them, if fewer: the end of a capture) on the
         map's ``points`` (M, 3) in ``map``: the result for those frames, which foot stood (N, 2) and the planes
         under them (N, 2, 4). ValueError without frames, or when the sole height is still unknown and no standing
-        foot has a plane (the frames are kept: try again with a later map, or drop them)."""
+        foot has the ground mapped under it (the frames are kept: try again with a later map, or drop them)."""
         if not self._frames:
             raise ValueError("no frames to optimise")
         c = self.config
@@ -374,11 +391,11 @@ class SceneOptimiser:
         t0 = pelvis[:, :3, 3]
         feet = t0[:, None, :] + feet_offsets(pelvis[:, :3, :3], legs, bones)
         stance = stance_from_suit(suit_feet, t_s, c.stance_speed_mps)
-        planes = fit_foot_planes(feet, stance, points, self._rng, c)
-        sole = self.sole_m if self.sole_m is not None else sole_height(feet, stance, planes)
+        planes, supported = fit_foot_planes(feet, stance, points, self._rng, c)
+        sole = self.sole_m if self.sole_m is not None else sole_height(feet, stance & supported, planes)
         if not np.isfinite(sole):
-            raise ValueError(f"no standing foot with a ground plane: no sole height yet ({int(stance.sum())} standing "
-                             f"feet in {len(t_s)} frames, {len(points)} map points)")
+            raise ValueError(f"no standing foot with the ground mapped under it: no sole height yet "
+                             f"({int(stance.sum())} standing feet in {len(t_s)} frames, {len(points)} map points)")
         self.sole_m = float(sole)
         chain = suit_pelvis if self._last_suit is None else np.concatenate([self._last_suit[None], suit_pelvis])
         suit_steps = np.linalg.norm(np.diff(chain[:, :2], axis=0), axis=1)  # horizontal (the suit's frame is level)
@@ -433,5 +450,5 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bon
             windows.append(result)
             done = w.stop
     if optimiser.sole_m is None:
-        raise ValueError("no standing foot with a ground plane: no sole height")
+        raise ValueError("no standing foot with the ground mapped under it: no sole height")
     return SequenceResult(out_pelvis, out_legs, out_feet, stance, planes, float(optimiser.sole_m), windows)

@@ -93,13 +93,37 @@ def test_planes_fitted_under_standing_feet_on_a_ramp():
     points = np.column_stack([x.ravel(), y.ravel(), slope * x.ravel()])
     feet = np.array([[[1.0, 0.1, slope + SOLE_M], [2.0, -0.1, 2 * slope + 0.2]]])
     stance = np.array([[True, False]])
-    planes = fit_foot_planes(feet, stance, points, rng, SceneOptimisationConfig())
+    planes, supported = fit_foot_planes(feet, stance, points, rng, SceneOptimisationConfig())
+    assert supported.tolist() == [[True, False]]
     normal = planes[0, 0, :3]
     assert np.degrees(np.arccos(normal[2])) == pytest.approx(10.0, abs=0.5)
     assert normal @ feet[0, 0] + planes[0, 0, 3] == pytest.approx(SOLE_M * np.cos(np.radians(10.0)), abs=0.005)
     assert np.isnan(planes[0, 1]).all()  # not standing: no plane
-    nothing = fit_foot_planes(feet, stance, points[:0], rng, SceneOptimisationConfig())
-    assert np.isnan(nothing).all()
+    nothing, supported = fit_foot_planes(feet, stance, points[:0], rng, SceneOptimisationConfig())
+    assert np.isnan(nothing).all() and not supported.any()
+
+
+def test_a_plane_counts_as_measured_under_the_foot_only_with_ground_points_near_it():
+    """An early map (the wearer's body hid the ground they stood on): an arc of ground points 0.45-0.6 m to one
+    side, on a 5 deg slope, gives a plane 4 cm above the true ground under the foot: not supported, so the sole
+    height waits for a later map; the whole patch's is."""
+    rng = np.random.default_rng(2)
+    slope = np.tan(np.radians(5.0))
+    r, a = np.meshgrid(np.arange(0.0, 0.6, 0.05), np.radians(np.arange(-180.0, 180.0, 10.0)))
+    points = np.column_stack([(r * np.cos(a)).ravel(), (r * np.sin(a)).ravel(), np.zeros(r.size)])
+    points[:, 2] = slope * (0.5 - points[:, 0])  # rising toward the foot: the true ground (z = 0) at 0.5 m only
+    feet = np.array([[[0.0, 0.0, SOLE_M], [1.0, 0.0, 0.2]]])
+    stance = np.array([[True, False]])
+    config = SceneOptimisationConfig()
+    arc = points[(np.hypot(points[:, 0], points[:, 1]) >= 0.45) & (points[:, 0] > 0.2)]
+    planes, supported = fit_foot_planes(feet, stance, arc, rng, config)
+    assert planes[0, 0, :3] @ feet[0, 0] + planes[0, 0, 3] < SOLE_M - 0.03  # extrapolated: the foot under it
+    assert not supported.any() and np.isnan(sole_height(feet, stance & supported, planes))
+    flat = points.copy()
+    flat[:, 2] = 0.0
+    planes, supported = fit_foot_planes(feet, stance, flat, rng, config)
+    assert supported.tolist() == [[True, False]]
+    assert sole_height(feet, stance & supported, planes) == pytest.approx(SOLE_M, abs=0.002)
 
 
 def test_sole_height_is_the_median_standing_height(walk):

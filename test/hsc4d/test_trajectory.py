@@ -177,28 +177,37 @@ def test_a_mounting_far_off_its_nominal_tilt_is_levelled_before_the_first_output
     assert 2.0 < pipeline.mount_disagreement_deg < 8.0 and "that ground was not level" in pipeline.status
 
 
-def test_a_wearer_standing_still_after_the_landing_does_not_sink():
-    """The rig variant with the hip LiDAR tilted up 45 deg (seed 11, its first 7.5 s): from 0.5 s before the jump's
-    end to 0.5 s into the walk the wearer stands still, and the odometry's pelvis rises or sinks as the truth within
-    3 cm (measured 0.8). Without the pelvis IMU's still detector (``still_accel_mps2`` near 0) it sank 15.5 cm there:
-    the sensor looking down keeps 180 points after the wearer filter, ICP slid sideways, 14 registrations in a row
-    were not believed and the guesses carried on a velocity fitted over the landing."""
-    capture = SiteCapture(SiteCaptureConfig(seed=11, seconds=30.0, mount_tilt_up_deg=45.0))
+@pytest.mark.parametrize("seed, tilt_deg", [(11, 45.0), (5, 30.0)])
+def test_a_wearer_standing_still_after_the_landing_stays_where_they_stand(seed, tilt_deg):
+    """From 0.5 s before the jump's end to 0.5 s into the walk the wearer stands still: the odometry's pelvis has
+    risen or sunk since the A-pose as the truth within 3 cm (measured 0.4 cm with the hip LiDAR tilted up 45 deg,
+    seed 11; 1.8 cm on the rig's 30 deg, seed 5), and at most 3 registrations in a row are not believed (0 and 1).
+    Without the pelvis IMU's still detector (``still_accel_mps2`` near 0) the 45 deg one sank 15.5 cm there: the
+    sensor looking down keeps 180 points after the wearer filter, ICP slid sideways, 14 registrations in a row were
+    not believed and the guesses carried on a velocity fitted over the landing. With the speed rule measured from
+    the last registered sweep instead of the last believed one, seed 5's guess stood 2-7 cm high and 2 cm aside
+    after the landing and 10-14 registrations in a row, to the walk, were refused (each took the guess's error back
+    as 0.3-0.4 m/s of motion; the map grew on the guesses)."""
+    capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=30.0, mount_tilt_up_deg=tilt_deg))
+    phases = {name: ((a - capture.epoch_ns) * 1e-9, (b - capture.epoch_ns) * 1e-9)
+              for name, a, b in capture.phases_ns()}
     refiner = CaptureRefiner()
     steps = []
     for _, stamp_ns, points, point_ns in capture_sweeps(capture, refiner):
-        if stamp_ns - capture.epoch_ns > 7_500_000_000:
+        if (stamp_ns - capture.epoch_ns) * 1e-9 > phases["walk"][0] + 1.0:
             break
         steps += refiner.pipeline.add_sweep(points, point_ns, stamp_ns)
     t = np.array([(s.stamp_ns - capture.epoch_ns) * 1e-9 for s in steps])
-    height = np.array([s.lidar_pelvis[2, 3] for s in steps])
-    true_height = capture.truth(t).pelvis[:, 2]
-    phases = {name: ((a - capture.epoch_ns) * 1e-9, (b - capture.epoch_ns) * 1e-9)
-              for name, a, b in capture.phases_ns()}
-    standing = (t > phases["jump"][1] - 0.5) & (t < phases["walk"][0] + 0.5)
-    assert standing.sum() >= 8
-    error = (height - height[0]) - (true_height - true_height[0])
-    assert np.abs(error[standing]).max() < 0.03
+    position, truth = np.array([s.lidar_pelvis[:3, 3] for s in steps]), capture.truth(t).pelvis
+    standing = np.flatnonzero((t > phases["jump"][1] - 0.5) & (t < phases["walk"][0] + 0.5))
+    assert len(standing) >= 8
+    rise = (position[standing, 2] - position[0, 2]) - (truth[standing, 2] - truth[0, 2])  # since the A-pose
+    assert np.abs(rise).max() < 0.03
+    in_a_row = longest = 0
+    for k in standing:
+        in_a_row = in_a_row + 1 if steps[k].rejected else 0
+        longest = max(longest, in_a_row)
+    assert longest <= 3, [(round(t[k], 2), steps[k].rejected) for k in standing]
 
 
 def test_without_a_jump_the_pipeline_holds_a_bounded_number_of_sweeps_and_says_why():
