@@ -16,8 +16,9 @@ mounting's rotation error and its lever arm's horizontal error (estimated, and
 nominal); the registrations not
 believed; the time per sweep, per optimisation window and of
 the whole offline refinement; each map's distance to the true scene surface
-(median, p90): the whole site's from the live odometry (S_live, the live
-graph's ``/hsc4d/map``) and from the refined trajectory (S_opt); and, the issue
+(median, p90; under the ATE's alignment, and drift forgiven as the shape's):
+the whole site's from the live odometry (S_live, the live graph's
+``/hsc4d/map``) and from the refined trajectory (S_opt); and, the issue
 asking the refinement to be at least as good as live on every metric, where
 it is not (unrounded, against which live output).
 Writes DIR/metrics.json and DIR/trajectories.png (per capture: top view and
@@ -89,7 +90,8 @@ def _line(name: str, m: dict[str, float]) -> str:
 def _map_line(name: str, m: dict[str, float]) -> str:
     return (f"  {_MAP_LABELS[name]:26s}{m['map_points']:9.0f} points to the true surface: median "
             f"{100 * m['map_median_m']:.1f} cm, p90 {100 * m['map_p90_m']:.1f} cm, {100 * m['map_far_fraction']:.1f} % "
-            f"farther than 1 m")
+            f"farther than 1 m; drift forgiven (shape) median {100 * m['map_shape_median_m']:.1f} cm, p90 "
+            f"{100 * m['map_shape_p90_m']:.1f} cm")
 
 
 def plot(runs: list[ev.TrajectoryRun], out: Path) -> None:
@@ -215,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     print(_shortfalls_line(report["mean"]))
     report["mean"]["refined_worse_than_live"] = [list(row) for row in refined_shortfalls(report["mean"])]
     report["mean"]["map"] = {name: {key: float(np.nanmean([report[s]["map"][name][key] for s in kept]))
-                                    for key in ("map_median_m", "map_p90_m", "map_far_fraction", "map_points")}
+                                    for key in report[kept[0]]["map"][name]}
                              for name in ev.MAPS}
     for name, m in report["mean"]["map"].items():
         print(_map_line(name, m))

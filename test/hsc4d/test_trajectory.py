@@ -134,6 +134,7 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
     for name in ("live", "refined"):
         m = scene[name]
         assert m["map_median_m"] < 0.05 and m["map_p90_m"] < 0.2 and m["map_far_fraction"] < 0.05, (name, m)
+        assert 0.0 < m["map_shape_median_m"] < 0.05 and m["map_shape_p90_m"] < 0.2, (name, m)
     assert scene["live"]["map_points"] == scene["refined"]["map_points"]  # S_opt: S_live's points, each sweep moved
     assert 0.0 < run.refine_s < run.t_s[-1] - run.t_s[0]  # faster than the capture
 
