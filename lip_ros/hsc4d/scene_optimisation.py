@@ -65,8 +65,8 @@ class SceneOptimisationConfig:
     plane_min_points: int = 8
     # the sole height takes only planes with plane_min_points inliers within this horizontal distance of the foot:
     # the ground measured under it, not extrapolated from the search disc's edge (an early map's arc of points half
-    # a metre off, tilted 4-15 deg, put the first window's feet 2-5 cm under their planes; contact keeps every plane:
-    # with this rule for it too a sparsely mapped ground lost planes that helped; docs/hsc4d/optimisation.md)
+    # a metre off, tilted up to 15 deg, put the first window's sole 2-5 cm off; contact keeps every plane:
+    # with this rule for it too the 10-20 deg mounting variant lost planes that helped; docs/hsc4d/optimisation.md)
     support_radius_m: float = 0.25
     # a foot slower than this (and than the other) stands: the paper's 2 cm a frame at 20 Hz is 0.4 m/s; from the
     # suit's feet that missed the edges of the true stances (sliding 0.91 against 0.86 cm a frame on the development
