@@ -26,8 +26,8 @@ own stamps, on ``/hsc4d/optimised/odometry`` and ``/hsc4d/optimised/{joint_state
 root_pose,joint_poses}`` (one window, 10 s at 10 Hz, behind the fused output).
 The first window also measures how high the foot joint stands
 above its sole, which needs the ground under the standing feet in the map
-(points within 0.25 m of a standing foot, not only at the search disc's
-edge); the ground the wearer stood on at the start is mapped only once they walked
+(points near a standing foot, ``SceneOptimisationConfig.support_radius_m``,
+not only at the search disc's edge); the ground the wearer stood on at the start is mapped only once they walked
 away (their own body hides it), so that window may wait for a later map, a
 window or ``max_wait_s`` (20 s) long, whichever is longer. A partial window is
 optimised once no fused pose has come for ``optimise_flush_s`` (the end of a
