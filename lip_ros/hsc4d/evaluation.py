@@ -225,6 +225,12 @@ def _alignment(run: TrajectoryRun, name: str, fit_s: float) -> np.ndarray:
     return align_yaw_translation(run.positions[name], run.truth, _fit_window(run, fit_s))
 
 
+def _shape_alignment(run: TrajectoryRun, name: str) -> np.ndarray:
+    """T (4, 4): method ``name``'s pelvis turned about z and shifted onto the truth by the fit over the whole
+    capture after the landing (drift forgiven)."""
+    return align_yaw_translation(run.positions[name], run.truth, run.t_s >= run.landing_s)
+
+
 def aligned(run: TrajectoryRun, name: str, fit_s: float = 5.0) -> np.ndarray:
     """(N, 3) method ``name``'s pelvis positions turned about z and shifted onto the truth by the fit over the
     ``fit_s`` s after the landing, kept for the whole capture."""
@@ -249,7 +255,7 @@ def trajectory_metrics(run: TrajectoryRun, fit_s: float = 5.0, level_m: float = 
         p = aligned(run, name, fit_s)
         err = np.linalg.norm(p - run.truth, axis=1)
         dz = p[:, 2] - run.truth[:, 2]
-        T = align_yaw_translation(run.positions[name], run.truth, after)
+        T = _shape_alignment(run, name)
         shape = np.linalg.norm(run.positions[name] @ T[:3, :3].T + T[:3, 3] - run.truth, axis=1)[after]
         out[name] = {
             "ate_m": float(np.sqrt(np.mean(err**2))),
@@ -306,7 +312,6 @@ def map_metrics(run: TrajectoryRun, terrain: Terrain, fit_s: float = 5.0, max_m:
     are centimetres across the site, whichever map it turns)."""
     raycaster = MeshRaycaster(terrain.triangles())
     rng = np.random.default_rng(run.seed)
-    after = run.t_s >= run.landing_s
     out = {}
     for name, method in MAPS.items():
         points = run.maps[name]
@@ -315,7 +320,7 @@ def map_metrics(run: TrajectoryRun, terrain: Terrain, fit_s: float = 5.0, max_m:
         points = points.astype(np.float64)
         out[name] = {"map_points": int(len(run.maps[name]))}
         for prefix, T in (("map", _alignment(run, method, fit_s)),
-                          ("map_shape", align_yaw_translation(run.positions[method], run.truth, after))):
+                          ("map_shape", _shape_alignment(run, method))):
             d = raycaster.surface_distance(points @ T[:3, :3].T + T[:3, 3], max_range=max_m)
             near = d[np.isfinite(d)]
             out[name] |= {f"{prefix}_median_m": float(np.median(near)) if near.size else float("nan"),

@@ -15,7 +15,7 @@ odometry: S_live). :meth:`CaptureRefiner.refine` then
 2. optimises it window by window with the scene
    (:func:`~lip_ros.hsc4d.scene_optimisation.optimise_sequence`) on S_live;
 3. rebuilds the map from the refined trajectory (S_opt: each point moved by the
-   correction of the sweep that placed it, :meth:`SiteMap.moved`).
+   shift of the sweep that placed it, :func:`sweep_shifts`, :meth:`SiteMap.moved`).
 
 Memory: about 4 KB per sweep (the bodies) and 20 B per map point, for the
 whole capture (``TrajectoryConfig.record_s`` bounds the graph's record).
@@ -35,7 +35,7 @@ from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, optimise_s
 from lip_ros.hsc4d.suit_body import FEET, BodyPose, SuitBody, SuitBodyConfig, bent_legs, leg_chains, moved_body
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 
-__all__ = ["RefinementConfig", "LiveRecord", "Refinement", "CaptureRefiner"]
+__all__ = ["RefinementConfig", "LiveRecord", "Refinement", "CaptureRefiner", "sweep_shifts"]
 
 
 @dataclass(frozen=True)
@@ -166,7 +166,7 @@ class CaptureRefiner:
             raise ValueError("the graph's record lacks sweeps posed live (TrajectoryConfig.record_s shorter than "
                              "the capture?)")
         graph = all_graph[k]
-        graph_map = self._shifted(live.pelvis, graph)  # the feet meet the ground as their own trajectory puts it
+        graph_map = self._shifted(live, graph)  # the feet meet the ground as their own trajectory puts it
         t_s = (live.stamps_ns - live.stamps_ns[0]) * 1e-9
         skeleton = self.body.skeleton
         t0 = time.perf_counter()
@@ -175,14 +175,27 @@ class CaptureRefiner:
                                    sole_m)
         window_s = np.full(len(result.windows), (time.perf_counter() - t0) / max(len(result.windows), 1))
         body = bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton, result.legs)
-        return Refinement(live.stamps_ns, graph, result.pelvis, body, self._shifted(live.pelvis, result.pelvis),
+        return Refinement(live.stamps_ns, graph, result.pelvis, body, self._shifted(live, result.pelvis),
                           result.sole_m, window_s, time.perf_counter() - start)
 
-    def _shifted(self, live: np.ndarray, to: np.ndarray) -> np.ndarray:
-        """(M, 3) the site map rebuilt with each sweep shifted as its pelvis moved from ``live`` to ``to`` (N, 4, 4),
-        its attitude kept as registered: ICP places a sweep to a fraction of a degree against the map, and the
-        optimisation's turn of the body about the pelvis places the feet (the graph's or that turn moved the rig
-        sites' walls by centimetres, measured)."""
-        corrections = np.tile(np.eye(4), (self.pipeline.mapped, 1, 1))  # steps not kept stay where they are
-        corrections[self._mapped, :3, 3] = to[:, :3, 3] - live[:, :3, 3]
+    def _shifted(self, live: LiveRecord, to: np.ndarray) -> np.ndarray:
+        """(M, 3) the site map rebuilt from the pelvis trajectory ``to`` (N, 4, 4) (:func:`sweep_shifts`); the
+        points of steps not kept stay where they are."""
+        shifts = np.zeros((self.pipeline.mapped, 3))
+        shifts[self._mapped] = sweep_shifts(live.lidar, to, self.pipeline.T_L_M)
+        corrections = np.tile(np.eye(4), (self.pipeline.mapped, 1, 1))
+        corrections[:, :3, 3] = shifts
         return self.pipeline.site.moved(corrections)
+
+
+def sweep_shifts(lidar: np.ndarray, pelvis: np.ndarray, T_L_M: np.ndarray) -> np.ndarray:
+    """(N, 3) how far to move each sweep placed by its odometry pose T_map_L ``lidar`` (N, 4, 4) so that its sensor
+    stands where the pelvis pose T_map_P ``pelvis`` (N, 4, 4) puts it through the mounting ``T_L_M`` (4, 4; the one
+    the refinement's graph used, the capture's last), its attitude kept as registered: ICP places a sweep to a
+    fraction of a degree against the map, and turning it with the graph, or with the optimisation's turn of the body
+    about the pelvis (which places the feet), moved the rig sites' walls by centimetres (measured). Measured from
+    the sweep's own placement, through the mounting the graph used: from the live fused pelvis, as before session
+    35, S_opt took the live graph's departures from the odometry and the lever arm estimate's changes over the
+    capture, and was blurrier than S_live."""
+    sensor = pelvis[:, :3, 3] - np.einsum("nij,j->ni", lidar[:, :3, :3], T_L_M[:3, 3])
+    return sensor - lidar[:, :3, 3]
