@@ -111,7 +111,10 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
     (the baselines) are more than twice as far off. The
     body on them, optimised with the scene: checkpoints within 10 cm, foot contact within 5 cm, MPJPE under
     20 mm, sliding no worse than the suit's own (the issue's targets are 10 cm, 3 cm, 20 mm and 1 cm a frame
-    over held-out 90 s walks, measured by hsc4d_eval; this short one at 512 columns is looser)."""
+    over held-out 90 s walks, measured by hsc4d_eval; this short one at 512 columns is looser). The site map
+    rebuilt from the refined trajectory (S_opt) is, drift forgiven, no farther from the true surface than the live
+    one (median / p90 1.44 / 4.21 against 1.51 / 4.37 cm; 1.56 / 4.30 when each sweep moved by the refined pelvis
+    less the live fused one, before session 35)."""
     capture = SiteCapture(SiteCaptureConfig(seed=0, seconds=24.0, columns=512))
     run = run_capture(capture)
     assert abs(run.offset_ns - run.true_offset_ns) < 10_000_000
@@ -136,6 +139,8 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
         assert m["map_median_m"] < 0.05 and m["map_p90_m"] < 0.2 and m["map_far_fraction"] < 0.05, (name, m)
         assert 0.0 < m["map_shape_median_m"] < 0.05 and m["map_shape_p90_m"] < 0.2, (name, m)
     assert scene["live"]["map_points"] == scene["refined"]["map_points"]  # S_opt: S_live's points, each sweep moved
+    for stat in ("map_shape_median_m", "map_shape_p90_m"):  # drift forgiven, S_opt no blurrier than S_live
+        assert scene["refined"][stat] <= scene["live"][stat], (stat, scene)
     assert 0.0 < run.refine_s < run.t_s[-1] - run.t_s[0]  # faster than the capture
 
 
