@@ -13,7 +13,8 @@ odometry: S_live). :meth:`CaptureRefiner.refine` then
 
 1. solves the whole capture's graph at once (:meth:`TrajectoryPipeline.refine`);
 2. optimises it window by window with the scene
-   (:func:`~lip_ros.hsc4d.scene_optimisation.optimise_sequence`) on S_live;
+   (:func:`~lip_ros.hsc4d.scene_optimisation.optimise_sequence`) on the site
+   map rebuilt from the graph's trajectory (as in 3.);
 3. rebuilds the map from the refined trajectory (S_opt: each point moved by the
    shift of the sweep that placed it, :func:`sweep_shifts`, :meth:`SiteMap.moved`).
 
@@ -179,12 +180,9 @@ class CaptureRefiner:
                           result.sole_m, window_s, time.perf_counter() - start)
 
     def _shifted(self, live: LiveRecord, to: np.ndarray) -> np.ndarray:
-        """(M, 3) the site map rebuilt from the pelvis trajectory ``to`` (N, 4, 4) (:func:`sweep_shifts`); the
-        points of steps not kept stay where they are."""
-        shifts = np.zeros((self.pipeline.mapped, 3))
-        shifts[self._mapped] = sweep_shifts(live.lidar, to, self.pipeline.T_L_M)
-        corrections = np.tile(np.eye(4), (self.pipeline.mapped, 1, 1))
-        corrections[:, :3, 3] = shifts
+        """(M, 3) the site map rebuilt from the pelvis trajectory ``to`` (N, 4, 4) (:func:`sweep_shifts`)."""
+        corrections = np.tile(np.eye(4), (self.pipeline.mapped, 1, 1))  # steps not kept stay where they are
+        corrections[self._mapped, :3, 3] = sweep_shifts(live.lidar, to, self.pipeline.T_L_M)
         return self.pipeline.site.moved(corrections)
 
 
