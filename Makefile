@@ -48,7 +48,7 @@ demo-bag: $(INSTALLED)
 
 test: $(INSTALLED)
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest test -q -p no:cacheprovider
+	$(PY) -m pytest test -q -p no:cacheprovider --durations=15
 
 bench: $(INSTALLED)
 	$(PY) benchmarks/bench_msgs.py

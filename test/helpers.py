@@ -24,6 +24,29 @@ def console_script(name: str) -> str:
     return exe
 
 
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, ended and not reaped yet, does not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def descendants(pid: int) -> list[int]:
+    """The processes below ``pid`` (its children, theirs, ...), from /proc."""
+    found, todo = [], [pid]
+    while todo:
+        for task in Path(f"/proc/{todo.pop()}/task").glob("*"):
+            try:
+                kids = [int(k) for k in (task / "children").read_text().split()]
+            except OSError:
+                continue
+            found += kids
+            todo += kids
+    return found
+
+
 def feed_detector(detector, streams: Mapping, clouds: Sequence[tuple[int, np.ndarray]], every_ns: int = 250_000_000
                   ) -> Iterator[int]:
     """Feed a :class:`~lip_ros.lip.calibration.CalibrationDetector` the rig's DOT streams and (stamp, points) clouds in

@@ -32,7 +32,9 @@ The summary says which calibration the run used.
 
 SIGINT or SIGTERM stop the run early: its processes are stopped as at the
 end (SIGINT each), the outputs recorded so far summarised, status 0. Any of
-its processes that does not end with status 0 fails the run (status 2).
+its processes that does not end with status 0 fails the run (status 2). If the
+tool itself is killed, they get SIGTERM (:func:`lip_ros.children.start_child`)
+and stop rather than go on in the ROS domain.
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ from rosgraph_msgs.msg import Clock
 from lip_msgs_py import msg_to_diagnostics, msg_to_pose_array, stamp_to_ns
 from lip_msgs_py.stamps import NS_PER_S
 from lip_ros.bagio import bag_span, bag_topics, read_messages
+from lip_ros.children import start_child
 from lip_ros.core import metrics
 from lip_ros.core.rotations import quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
@@ -441,12 +444,12 @@ def _run(argv: list[str]) -> int:
     start_ros(argv)
     first_ns, last_ns = bag_span(args.inputs)
     watch = _Watch(first_ns, args.rate, branch.pose_topic, stop)
-    node = subprocess.Popen([installed_script("fusion_node"), "--ros-args", *node_args])
-    recorder = subprocess.Popen([installed_script("lip_bag_record"), str(args.outputs), "--topics", *branch.outputs],
+    node = start_child([installed_script("fusion_node"), "--ros-args", *node_args])
+    recorder = start_child([installed_script("lip_bag_record"), str(args.outputs), "--topics", *branch.outputs],
                                 stdout=subprocess.DEVNULL)
     procs = [node, recorder]
     try:
-        play = subprocess.Popen([installed_script("lip_bag_play"), str(args.inputs), "--clock",
+        play = start_child([installed_script("lip_bag_play"), str(args.inputs), "--clock",
                                  "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *branch.inputs])
         procs.append(play)
         watch.spin_while(lambda: play.poll() is None, float("inf"))

@@ -9,7 +9,9 @@ callbacks and the odometry's registrations take turns on one interpreter lock,
 which measured here starved the trajectory node of a third of its suit samples
 and put its latency past a second (docs/hsc4d/graph.md). The child is stopped
 with this process; if it ends on its own (e.g. a bad parameter), so does the
-graph, with its exit status. The scene-aware optimisation is not a node yet.
+graph, with its exit status; if this process is killed, the child gets SIGTERM
+(:func:`lip_ros.children.start_child`) and stops too. The scene-aware
+optimisation is not a node yet.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import threading
 
 import rclpy
 
+from lip_ros.children import start_child
 from lip_ros.nodes.base import run_nodes
 from lip_ros.nodes.hsc4d.body import BodyNode
 from lip_ros.nodes.hsc4d.trajectory import TrajectoryNode
@@ -38,7 +41,7 @@ def run_hsc4d_graph(prog: str, description: str, argv: list[str] | None = None) 
     argv = list(sys.argv if argv is None else argv)
     if {"-h", "--help"} & set(rclpy.utilities.remove_ros_args(argv)[1:]):
         return run_nodes(prog, description, [TrajectoryNode], HSC4D_GRAPH, argv)
-    body = subprocess.Popen([sys.executable, "-m", BodyNode.__module__, *argv[1:]])
+    body = start_child([sys.executable, "-m", BodyNode.__module__, *argv[1:]])
 
     def watch() -> None:  # the body node ended on its own: end the graph too
         body.wait()
