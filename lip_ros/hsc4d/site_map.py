@@ -9,11 +9,12 @@ has one from that far (nearest first). Why not the first sighting: it is often
 from 20-30 m as the wearer approached, and a sweep placed a fraction of a
 degree off moves a point by its range times that (the ground the feet later
 stood on was 1.7-2.8 cm high on held-out 1000, session 35). Why not the
-nearest: that is placed by the pose of about the time the wearer stands there,
-and the scene-aware optimisation's contact term then meets ground that carries
-the same pose error as the body; measured (``hsc4d_eval``, held-out and
-development, docs/hsc4d/optimisation.md "Maps"), the nearest sighting made the
-bodies worse and the nearest from 8 m better than the first.
+nearest: measured (``hsc4d_eval``, docs/hsc4d/optimisation.md "Maps"), it made
+the optimised bodies worse, where the nearest from 8 m made the live optimised
+ones better on the held-out and development sets (the refined ones mixed) and
+the maps sharper (p90 on every set); a guess the figures fit: the nearest sighting of the ground
+under the feet is placed by the pose of about the time the wearer stands there,
+so the contact term meets ground that carries the body's own pose error.
 Rebuilding the map from another trajectory (the paper's S_opt, from the
 refined one) is then moving each point by its own sweep's correction
 (:meth:`SiteMap.moved`): the points stay as the sensor saw them, only where

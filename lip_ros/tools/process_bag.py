@@ -446,11 +446,11 @@ def _run(argv: list[str]) -> int:
     watch = _Watch(first_ns, args.rate, branch.pose_topic, stop)
     node = start_child([installed_script("fusion_node"), "--ros-args", *node_args])
     recorder = start_child([installed_script("lip_bag_record"), str(args.outputs), "--topics", *branch.outputs],
-                                stdout=subprocess.DEVNULL)
+                           stdout=subprocess.DEVNULL)
     procs = [node, recorder]
     try:
         play = start_child([installed_script("lip_bag_play"), str(args.inputs), "--clock",
-                                 "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *branch.inputs])
+                            "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *branch.inputs])
         procs.append(play)
         watch.spin_while(lambda: play.poll() is None, float("inf"))
         if play.poll() is not None and play.returncode != 0:
