@@ -12,7 +12,10 @@ the shift of the DOT's stamps that best lines the two up:
   10 % of the height from the trunk's vertical axis): connected groups of
   points, elongated, their principal direction. The floor and the height are
   running medians of the performer's own lowest and highest points, so
-  neither the ground plane nor the performer's size need to be known.
+  neither the ground plane nor the performer's size need to be known; where
+  a band's points lie farther apart than the 6 cm that links them (a limb
+  far from the LiDAR, a few beams across), they link by their own spacing
+  instead.
 * :class:`LatencyEstimator` compares, for every observed frame and every
   latency of a grid (:class:`LatencyConfig`), the DOT's bone direction at
   the pose time plus that latency with the nearest limb axis seen (the two
@@ -59,14 +62,19 @@ class LatencyConfig:
     trunk_band: tuple[float, float] = (0.55, 0.8)  # heights whose median point is the trunk's vertical axis
     forearm_off_trunk: float = 0.1  # arm points are farther than this from the trunk's axis / body height
     link_m: float = 0.06  # points closer than this are one limb
-    min_points: int = 6
+    min_points: int = 6  # of a limb
+    sparse_link: float = 2.0  # where a band has no limb so and its points lie farther apart than link_m, they
+    sparse_min_points: int = 4  # link closer than this many times their spacing, and a limb needs this many
+    sparse_min_span: float = 2.5  # and spans this many times their spacing along its axis (three beams or more)
     min_length_m: float = 0.1  # a limb's points span at least this along its axis
     min_elongation: float = 4.0  # first / second principal variance
     history: int = 30  # frames of lowest and highest points for the floor and the body height
 
     def __post_init__(self) -> None:
         if not (self.low_ns < self.high_ns and self.step_ns > 0 and self.window >= self.min_frames >= 1
-                and self.every >= 1 and self.contrast_ns >= self.step_ns and self.history >= 1):
+                and self.every >= 1 and self.contrast_ns >= self.step_ns and self.history >= 1
+                and self.min_points >= self.sparse_min_points >= 2 and self.sparse_link > 0.0
+                and self.sparse_min_span >= 0.0):
             raise ValueError(f"invalid {self}")
 
     @property
@@ -108,21 +116,38 @@ class LimbFinder:
         return found
 
     def _groups(self, points: np.ndarray) -> np.ndarray:
-        """Principal axes (K, 3) of the connected, elongated groups of ``points``."""
+        """Principal axes (K, 3) of the connected, elongated groups of ``points``: linked closer than ``link_m``;
+        where that finds none because the points lie farther apart than that (a limb far from the LiDAR, a few
+        beams across), linked by their own spacing instead."""
         c = self.config
-        if len(points) < c.min_points:
+        if len(points) < c.sparse_min_points:
             return np.zeros((0, 3))
         points = points[:: -(-len(points) // _MAX_GROUPED)]  # thinned evenly: the groups' axes stay
-        labels = _components(points, c.link_m)
+        squared = np.sum((points[:, None, :] - points[None, :, :]) ** 2, axis=-1)
+        axes = self._elongated(points, squared <= c.link_m**2, c.min_points, c.min_length_m)
+        if len(axes):
+            return axes
+        np.fill_diagonal(squared, np.inf)
+        spacing = float(np.sqrt(np.median(squared.min(axis=1))))  # median distance to the nearest neighbour
+        if spacing <= c.link_m:  # not sparse: the points fell apart otherwise (a limb hidden in part, no limb)
+            return axes
+        return self._elongated(points, squared <= (c.sparse_link * spacing) ** 2, c.sparse_min_points,
+                               max(c.min_length_m, c.sparse_min_span * spacing))
+
+    def _elongated(self, points: np.ndarray, near: np.ndarray, min_points: int, min_length_m: float) -> np.ndarray:
+        """Principal axes (K, 3) of the elongated groups that ``near`` (N, N) links, of at least ``min_points``
+        spanning ``min_length_m`` along the axis."""
+        c = self.config
+        labels = _components(near)
         axes = []
         for k in np.unique(labels):
             group = points[labels == k]
-            if len(group) < c.min_points:
+            if len(group) < min_points:
                 continue
             variance, vectors = np.linalg.eigh(np.cov(group.T))
             axis = vectors[:, 2]
             along = group @ axis
-            if variance[2] >= c.min_elongation * variance[1] and np.ptp(along) >= c.min_length_m:
+            if variance[2] >= c.min_elongation * variance[1] and np.ptp(along) >= min_length_m:
                 axes.append(axis)
         return np.array(axes).reshape(-1, 3)
 
@@ -131,12 +156,13 @@ class LimbFinder:
 _MAX_GROUPED = 300
 
 
-def _components(points: np.ndarray, link_m: float) -> np.ndarray:
-    """Labels (N,) of the connected groups of ``points`` (N, 3), linked closer than ``link_m`` (dense: N is small)."""
-    near = np.sum((points[:, None, :] - points[None, :, :]) ** 2, axis=-1) <= link_m * link_m
-    labels = np.arange(len(points))
+def _components(near: np.ndarray) -> np.ndarray:
+    """Labels (N,) of the connected groups of N points, ``near`` (N, N) saying which pairs link (a point links to
+    itself)."""
+    np.fill_diagonal(near, True)
+    labels = np.arange(len(near))
     while True:  # every point takes the least label of its neighbours, then of that label's point
-        lowest = np.where(near, labels[None, :], len(points)).min(axis=1)
+        lowest = np.where(near, labels[None, :], len(near)).min(axis=1)
         lowest = lowest[lowest]
         if np.array_equal(lowest, labels):
             return labels

@@ -224,6 +224,13 @@ class CaptureSession:
             s.stamp_ns = s.stamp_ns + self.epoch_ns
         return streams
 
+    def dot_delays_ms(self) -> dict[str, float]:
+        """Each DOT's true mean delay (ms): how late its samples are stamped on average, its latency plus the
+        mean stamp jitter, what an online latency estimate should find."""
+        return {name: 1e3 * float(np.mean((s.stamp_ns - self.epoch_ns) * 1e-9 - s.t_true
+                                          - self.imu_truth.clock_offset_s))
+                for name, s in self.imu_streams().items()}
+
     def phases_ns(self) -> list[tuple[str, int, int]]:
         """The motion's phase windows (calibration poses, activities) on the capture clock."""
         return [(p.name, self.epoch_ns + int(p.t_start * 1e9), self.epoch_ns + int(p.t_end * 1e9))

@@ -177,6 +177,9 @@ SHIFTED = RigDomain(
 SHIFT_GROUPS = {
     "body": ("proportions", "torso_girth", "limb_girth"),
     "imus": ("imu_along", "imu_surface_m", "imu_noise_factor", "imu_latency_ms"),
+    "imu_placement": ("imu_along", "imu_surface_m"),  # the IMU group's parts
+    "imu_errors": ("imu_noise_factor",),
+    "imu_timing": ("imu_latency_ms",),
     "motion": ("energy", "tempo"),
     "mount": ("distance_m", "lidar_height_m", "lidar_pitch_deg"),
     "wall": ("occluder_prob", "occluder_height_m"),
