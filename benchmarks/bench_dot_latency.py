@@ -1,7 +1,7 @@
 """How well the LIP pipeline estimates each DOT's latency online, by distance: rig walks, DOTs stamped late.
 
-For each distance, ``--seeds`` rig walks (1024 columns, DOTs stamped 20-60 ms late with 5 ms of jitter, as
-``test/lip/test_dot_latency.py``'s) are recorded to ``--bag-dir`` (kept and reused) and run through
+For each distance, ``--seeds`` rig walks (``--columns``, default 1024; DOTs stamped 20-60 ms late with 5 ms of
+jitter, as ``test/lip/test_dot_latency.py``'s) are recorded to ``--bag-dir`` (kept and reused) and run through
 :class:`lip_ros.lip.pipeline.LipPipeline`; per DOT, the latency estimate at the end of the bag against the DOT's
 true mean delay (``CaptureSession.dot_delays_ms``). Prints each walk's estimates and, per distance, how many of the
 DOTs had an estimate, their mean and largest error, and the error of what was taken off (an estimate, or the
@@ -29,9 +29,11 @@ WALK = CaptureConfig(scenario="walk", seconds=20.0, columns=1024, imu_latency_ms
                      imu_latency_jitter_ms=5.0)
 
 
-def _walk(seed: int, distance_m: float, seconds: float, bag_dir: Path) -> tuple[CaptureSession, Path]:
-    session = CaptureSession(dataclasses.replace(WALK, seed=seed, distance_m=distance_m, seconds=seconds))
-    bag = bag_dir / f"walk_{distance_m:g}m_{seconds:g}s_{seed}"
+def _walk(seed: int, distance_m: float, seconds: float, columns: int, bag_dir: Path) -> tuple[CaptureSession, Path]:
+    session = CaptureSession(dataclasses.replace(WALK, seed=seed, distance_m=distance_m, seconds=seconds,
+                                                 columns=columns))
+    suffix = "" if columns == WALK.columns else f"_{columns}c"
+    bag = bag_dir / f"walk_{distance_m:g}m_{seconds:g}s_{seed}{suffix}"
     if not (bag / "metadata.yaml").exists():
         write_capture_bag(session, bag, progress=False)
     return session, bag
@@ -42,6 +44,7 @@ def main() -> None:
     p.add_argument("--distances", type=float, nargs="+", default=[7.0, 12.0, 16.0])
     p.add_argument("--seeds", type=int, default=10, help="walks per distance (seeds 0..N-1)")
     p.add_argument("--seconds", type=float, default=WALK.seconds)
+    p.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=WALK.columns)
     p.add_argument("--bag-dir", type=Path, help="where the walks are recorded (default: a temporary directory)")
     args = p.parse_args()
     set_threads(1)
@@ -52,7 +55,7 @@ def main() -> None:
         for distance in args.distances:
             errors, taken_off = [], []
             for seed in range(args.seeds):
-                session, bag = _walk(seed, distance, args.seconds, bag_dir)
+                session, bag = _walk(seed, distance, args.seconds, args.columns, bag_dir)
                 pipeline = LipPipeline(model)
                 for _ in process_bag_batch(pipeline, bag):
                     pass
@@ -65,7 +68,8 @@ def main() -> None:
                     row.append(f"{name} {'-' if ms is None else f'{ms:.1f}'}/{true_ms:.1f}")
                 print(f"{distance:g} m, seed {seed} (estimate/true ms): {' '.join(row)}", flush=True)
             e, t = np.array(errors), np.array(taken_off)
-            print(f"{distance:g} m, {args.seconds:g} s walks: {np.isfinite(e).sum()} of {len(e)} DOTs estimated, "
+            print(f"{distance:g} m, {args.seconds:g} s walks, {args.columns} columns: "
+                  f"{np.isfinite(e).sum()} of {len(e)} DOTs estimated, "
                   f"error mean {np.nanmean(e) if np.isfinite(e).any() else np.nan:.1f} / max "
                   f"{np.nanmax(e) if np.isfinite(e).any() else np.nan:.1f} ms; what was taken off: mean "
                   f"{t.mean():.1f} / max {t.max():.1f} ms from the truth", flush=True)
