@@ -1,7 +1,7 @@
 """lip_bag_play: publish a rosbag2 bag's messages with their recorded timing and QoS (as ``ros2 bag play`` does).
 
   lip_bag_play BAG [--rate R] [--start S] [--loop [--time-goes-on]] [--clock [HZ]] [--topics T ...]
-               [--wait-for-subscribers]
+               [--wait-for-subscribers] [--paced-by POSE_TOPIC [--ahead N]]
 
 Messages keep their log-time spacing (divided by ``--rate``) and are published
 as the CDR bytes stored in the bag, never deserialised; each topic gets the
@@ -11,8 +11,15 @@ with ``use_sim_time``. ``--loop`` plays the bag again and again, each pass with
 the bag's own time (as ``ros2 bag play --loop``: /clock and the stamps go back);
 with ``--time-goes-on`` each pass goes on from where the last one ended
 instead: /clock and every header stamp move on by the played window's length
-plus :data:`LOOP_GAP_NS`, as one long capture would (a soak test). Progress on
-stderr, a summary on stdout.
+plus :data:`LOOP_GAP_NS`, as one long capture would (a soak test).
+``--paced-by`` plays no faster than the graph it feeds can take (a bag
+processed offline, every cloud posed, on any machine): each point cloud waits
+until the graph's latest pose on POSE_TOPIC (geometry_msgs/PoseStamped) is
+stamped no earlier than the cloud ``--ahead`` clouds before it, and the timing
+of everything after the wait moves on by the wait (/clock stands still
+meanwhile). Until the first pose, and while none has come for
+:data:`PACING_STALL_S` (a graph calibrating, waiting for a jump, or seeing
+nobody), it plays at ``--rate``. Progress on stderr, a summary on stdout.
 """
 
 from __future__ import annotations
@@ -21,18 +28,21 @@ import itertools
 import sys
 import threading
 import time
+from collections import deque
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import rclpy
+from geometry_msgs.msg import PoseStamped
 from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-from lip_msgs_py import ns_to_sec_nanosec, rclpy_message_class
+from lip_msgs_py import ns_to_sec_nanosec, rclpy_message_class, stamp_to_ns
 from lip_msgs_py.cdr import cdr_stamp, with_cdr_stamp
 from lip_msgs_py.stamps import NS_PER_S
 from lip_ros.bagio import BagError, TopicInfo, bag_span, bag_topics, read_raw
@@ -47,6 +57,9 @@ DISCOVERY_SETTLE_S = 0.5  # after the subscribers appear, for their side of disc
 ACK_TIMEOUT = Duration(seconds=2)  # reliable topics: wait this long at the end for the last messages' acks
 LINGER_S = 0.5  # best-effort topics: stay this long at the end, as subscribers lose what an exiting writer sent last
 LOOP_GAP_NS = 100_000_000  # --time-goes-on: from the end of one pass to the start of the next, in bag time
+DEFAULT_AHEAD = 3  # --paced-by: clouds the graph may have unposed (within a LiDAR input queue's depth of 5)
+PACING_STALL_S = 2.0  # --paced-by: no pose for this long (wall time) and the player goes on at --rate
+PACED_TYPE = "sensor_msgs/msg/PointCloud2"  # the messages --paced-by holds
 
 
 @dataclass(frozen=True)
@@ -63,6 +76,8 @@ class PlayPlan:
     clock_hz: float | None = None
     wait_for_subscribers: bool = False
     time_goes_on: bool = False  # with loop: each pass's time follows the last one's (header stamps and /clock)
+    paced_by: str | None = None  # the graph's PoseStamped topic that paces the clouds (--paced-by)
+    ahead: int = DEFAULT_AHEAD  # clouds the graph may have unposed with paced_by
 
 
 @dataclass
@@ -72,12 +87,13 @@ class PlayStats:
     messages: int = 0
     passes: int = 0
     max_lag_ms: float = 0.0  # largest delay of a publication behind its scheduled time
+    held_s: float = 0.0  # wall time the clouds waited for the graph (paced_by)
     per_topic: dict[str, int] = field(default_factory=dict)
 
 
 def plan_playback(bag: Path, rate: float = 1.0, start_s: float = 0.0, topics: list[str] | None = None,
                   loop: bool = False, clock_hz: float | None = None, wait_for_subscribers: bool = False,
-                  time_goes_on: bool = False) -> PlayPlan:
+                  time_goes_on: bool = False, paced_by: str | None = None, ahead: int = DEFAULT_AHEAD) -> PlayPlan:
     """Check the bag and options and resolve each topic's rclpy message class; ToolError on a problem."""
     if not rate > 0:
         raise ToolError(f"--rate must be > 0, got {rate}")
@@ -108,8 +124,12 @@ def plan_playback(bag: Path, rate: float = 1.0, start_s: float = 0.0, topics: li
         raise ToolError(f"--start {start_s} s is past the end of the bag ({(last_ns - first_ns) / NS_PER_S:.1f} s)")
     if time_goes_on and not loop:
         raise ToolError("--time-goes-on is for --loop")
+    if paced_by is not None and not any(selected[t].msgtype == PACED_TYPE for t in selected):
+        raise ToolError(f"--paced-by holds point clouds, and none of the played topics is a {PACED_TYPE}")
+    if not ahead >= 1:
+        raise ToolError(f"--ahead must be >= 1, got {ahead}")
     return PlayPlan(Path(bag), selected, classes, start_ns, last_ns, rate, loop, clock_hz, wait_for_subscribers,
-                    time_goes_on)
+                    time_goes_on, paced_by, ahead)
 
 
 class BagPlayer:
@@ -127,17 +147,23 @@ class BagPlayer:
         self.stamped = {t for t, c in plan.classes.items()
                         if next(iter(c.get_fields_and_field_types().items()), None) == ("header", "std_msgs/Header")}
         self.stats = PlayStats(per_topic=dict.fromkeys(plan.topics, 0))
+        self.pacer = None if plan.paced_by is None else Pacer(node, plan.paced_by, plan.ahead, stop)
+        self.paced = {t for t, i in plan.topics.items() if i.msgtype == PACED_TYPE} if self.pacer else set()
 
     def run(self) -> PlayStats:
         """Wait for subscribers if asked, play (looping if asked), let reliable topics deliver; the stats."""
-        if self.plan.wait_for_subscribers and not self._wait_for_subscribers():
-            return self.stats
-        while not self.stop.is_set():
-            offset = self.stats.passes * (self.plan.end_ns - self.plan.start_ns + LOOP_GAP_NS)
-            self._play_pass(offset if self.plan.time_goes_on else 0)
-            self.stats.passes += 1
-            if not self.plan.loop:
-                break
+        try:
+            if self.plan.wait_for_subscribers and not self._wait_for_subscribers():
+                return self.stats
+            while not self.stop.is_set():
+                offset = self.stats.passes * (self.plan.end_ns - self.plan.start_ns + LOOP_GAP_NS)
+                self._play_pass(offset if self.plan.time_goes_on else 0)
+                self.stats.passes += 1
+                if not self.plan.loop:
+                    break
+        finally:
+            if self.pacer is not None:
+                self.pacer.close()
         for pub in self.publishers.values():
             if pub.qos_profile.reliability == ReliabilityPolicy.RELIABLE:
                 pub.wait_for_all_acked(ACK_TIMEOUT)
@@ -177,6 +203,10 @@ class BagPlayer:
                     self.stop.wait((wake - now) / NS_PER_S)
                 if self.stop.is_set():
                     return
+                if m.topic in self.paced:
+                    held = self.pacer.hold(cdr_stamp(m.data) + offset_ns)
+                    wall0, next_clock, due = wall0 + held, next_clock + held, due + held
+                    self.stats.held_s += held / NS_PER_S
                 stamped = offset_ns and m.topic in self.stamped
                 self.publishers[m.topic].publish(with_cdr_stamp(m.data, cdr_stamp(m.data) + offset_ns) if stamped
                                                  else m.data)
@@ -192,6 +222,50 @@ class BagPlayer:
     def _status(self, bag_ns: int) -> str:
         total = (self.plan.end_ns - self.plan.start_ns) / NS_PER_S
         return f"{(bag_ns - self.plan.start_ns) / NS_PER_S:6.1f} / {total:.1f} s, {self.stats.messages} messages"
+
+
+class Pacer:
+    """``--paced-by``: holds each cloud until the graph has posed all but ``ahead`` of the clouds before it, as its
+    latest pose on ``pose_topic`` says (taken on a thread of its own)."""
+
+    def __init__(self, node: Node, pose_topic: str, ahead: int, stop: threading.Event) -> None:
+        self.ahead, self.stop = ahead, stop
+        self._sent: deque[int] = deque(maxlen=ahead)  # header stamps (ns) of the last clouds published
+        self._pose: tuple[int, int] | None = None  # (stamp, monotonic ns of its arrival) of the latest pose
+        self._posed = threading.Condition()
+        node.create_subscription(PoseStamped, pose_topic, self._on_pose,
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self._executor = SingleThreadedExecutor(context=node.context)
+        self._executor.add_node(node)
+        self._thread = threading.Thread(target=self._executor.spin, name="pacer", daemon=True)
+        self._thread.start()
+
+    def _on_pose(self, msg: PoseStamped) -> None:
+        with self._posed:
+            self._pose = stamp_to_ns(msg.header.stamp), time.monotonic_ns()
+            self._posed.notify_all()
+
+    def _lagging(self) -> bool:
+        """Whether the graph is behind: its latest pose older than the cloud ``ahead`` before, and recent."""
+        if self._pose is None or len(self._sent) < self.ahead:
+            return False
+        stamp, arrived = self._pose
+        return stamp < self._sent[0] and time.monotonic_ns() - arrived < PACING_STALL_S * NS_PER_S
+
+    def hold(self, stamp_ns: int) -> int:
+        """Wait while the graph lags (or until stopped), then count the cloud stamped ``stamp_ns`` as sent; the
+        wall time waited (ns)."""
+        start = time.monotonic_ns()
+        with self._posed:
+            while self._lagging() and not self.stop.is_set():
+                self._posed.wait(0.05)
+            self._sent.append(stamp_ns)
+        return time.monotonic_ns() - start
+
+    def close(self) -> None:
+        """Stop taking poses."""
+        self._executor.shutdown(timeout_sec=1.0)
+        self._thread.join(timeout=2.0)
 
 
 def parser() -> ArgumentParser:
@@ -210,13 +284,18 @@ def parser() -> ArgumentParser:
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="play only these topics")
     p.add_argument("--wait-for-subscribers", action="store_true",
                    help="start only when every played topic has a subscriber")
+    p.add_argument("--paced-by", metavar="POSE_TOPIC",
+                   help="hold each point cloud until the graph's latest pose on this geometry_msgs/PoseStamped topic "
+                        "is stamped no earlier than the cloud --ahead clouds before it (no faster than the graph)")
+    p.add_argument("--ahead", type=int, default=DEFAULT_AHEAD, metavar="N",
+                   help=f"with --paced-by: clouds the graph may have unposed (default {DEFAULT_AHEAD})")
     return p
 
 
 def _play(argv: list[str]) -> int:
     args = parser().parse_args(tool_args(argv))
     plan = plan_playback(args.bag, args.rate, args.start, args.topics, args.loop, args.clock,
-                         args.wait_for_subscribers, args.time_goes_on)
+                         args.wait_for_subscribers, args.time_goes_on, args.paced_by, args.ahead)
     stop = stop_on_signals()
     start_ros(argv)
     node = rclpy.create_node("lip_bag_play")
@@ -228,8 +307,9 @@ def _play(argv: list[str]) -> int:
         progress.done()
         node.destroy_node()
     topics = ", ".join(f"{t} {n}" for t, n in stats.per_topic.items())
+    held = f", clouds held {stats.held_s:.1f} s for {plan.paced_by}" if plan.paced_by else ""
     print(f"{PROG}: {stats.messages} messages in {time.monotonic() - t0:.1f} s ({stats.passes} pass(es), "
-          f"max lag {stats.max_lag_ms:.1f} ms{', interrupted' if stop.is_set() else ''}): {topics}")
+          f"max lag {stats.max_lag_ms:.1f} ms{held}{', interrupted' if stop.is_set() else ''}): {topics}")
     return 0
 
 

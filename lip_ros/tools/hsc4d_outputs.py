@@ -37,9 +37,6 @@ from lip_ros.hsc4d.sensors import (
     SUIT_ODOMETRY_TOPIC,
 )
 from lip_ros.outputs import PoseTopics
-from lip_ros.rig.bag import TRUTH_FILE
-from lip_ros.rig.site_bag import SITE_TRUTH_FILE
-from lip_ros.rig.terrain import Terrain
 
 __all__ = ["Hsc4dAccuracy", "hsc4d_accuracy", "plot_hsc4d", "FIT_S"]
 
@@ -114,6 +111,8 @@ def _accuracy(outputs: Path, odometry_topic: str, topics: PoseTopics, truth: dic
     T = metrics.align_yaw_translation(pelvis, true_pelvis, fit)
     aligned = pelvis @ T[:3, :3].T + T[:3, 3]
     err = np.linalg.norm(aligned - true_pelvis, axis=1)
+    from lip_ros.rig.terrain import Terrain  # the rig (scipy.signal): only on a rig capture
+
     ground = Terrain.random(int(rig["config"]["seed"])).surface_height(true_pelvis[:, :2])
     off_level = np.abs(ground - ground[0]) > LEVEL_M
     dz = aligned[:, 2] - true_pelvis[:, 2]
@@ -135,6 +134,9 @@ def hsc4d_accuracy(inputs: Path, outputs: Path, offset_ns: int | None, refined: 
                    ) -> Hsc4dAccuracy | None:
     """The run's accuracy (and of the offline refinement's bag ``refined``, if given), or None without the rig's
     truth files or outputs in its span."""
+    from lip_ros.rig.bag import TRUTH_FILE  # the rig (scipy.signal): not for a real capture's summary
+    from lip_ros.rig.site_bag import SITE_TRUTH_FILE
+
     truth_file, sidecar = inputs / SITE_TRUTH_FILE, inputs / TRUTH_FILE
     if not (truth_file.is_file() and sidecar.is_file()):
         return None

@@ -11,7 +11,11 @@ the ``frames ...`` and ``pending`` values of their ``<node>: frames``
 diagnostics), stops them and prints a summary: frames in/out/skipped,
 latency percentiles, accuracy against the truth when IN has it, and the
 wall time from the start of playback to the last pose as a multiple of real
-time (``--rate`` plays the bag faster). With ``--plot`` it also draws the
+time (``--rate`` plays the bag faster). ``--paced`` plays no faster than the
+graph poses the clouds (``lip_bag_play --paced-by``): every cloud reaches it on
+any machine, as processing a recorded bag wants; without it the bag plays as
+the sensors would, and a graph too slow for them loses clouds, as it would
+live. With ``--plot`` it also draws the
 trajectory and a few skeleton frames (LIP), or the trajectory from above, its
 height over time against the truth and the suit's own odometry, and the map
 (HSC4D: :mod:`lip_ros.tools.hsc4d_outputs`).
@@ -75,7 +79,7 @@ from lip_ros.hsc4d.sensors import (
 )
 from lip_ros.lip.calibration import load_calibration
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
-from lip_ros.nodes.lip.calibration import DOT_LATENCY_VALUE, CalibrationNode
+from lip_ros.nodes.lip import CALIBRATION_NODE_NAME, DOT_LATENCY_VALUE
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
 from lip_ros.tools.hsc4d_outputs import Hsc4dAccuracy, hsc4d_accuracy, plot_hsc4d
@@ -92,7 +96,7 @@ from lip_ros.tools.ros_cli import (
 __all__ = ["main", "ProcessSummary", "summarize_outputs", "Branch", "LIP", "HSC4D", "branch_of_bag"]
 
 MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their stamps are this close
-CALIBRATION_FRAMES = f"{CalibrationNode.NAME}: frames"  # ... with the DOT latencies
+CALIBRATION_FRAMES = f"{CALIBRATION_NODE_NAME}: frames"  # ... with the DOT latencies
 OFFSET_VALUE = "suit clock offset (ms)"  # of the HSC4D trajectory node's frames status
 CATCH_UP_PREFIX = "catch_up_latency_ms_"  # ... its latency of the sweeps that waited behind the backlog
 #: after every frame is accounted for, how long the HSC4D graph may take to settle: the last sweep waiting for the
@@ -128,15 +132,20 @@ HSC4D = Branch("hsc4d", HIP_LIDAR_TOPIC,
                "latency_ms_", f"{ODOMETRY_TOPIC} published", ("-p", "branch:=hsc4d"))
 
 
-def suit_rate_of_bag(bag: Path) -> float:
-    """The rate (Hz) of an HSC4D bag's suit odometry over the bag's span, which sizes the graph's suit buffers
-    (the contract's 100 Hz unless the suit runs at another); ToolError if the bag has too few of its messages."""
-    info = bag_topics(bag).get(SUIT_ODOMETRY_TOPIC)
+def rate_of_bag(bag: Path, topic: str) -> float:
+    """The rate (Hz) of ``topic`` over the bag's span; ToolError if the bag has too few of its messages."""
+    info = bag_topics(bag).get(topic)
     count = 0 if info is None else info.count
     first_ns, last_ns = bag_span(bag)
     if count < 2 or last_ns <= first_ns:
-        raise ToolError(f"{bag}: {count} messages on {SUIT_ODOMETRY_TOPIC}: no suit rate")
+        raise ToolError(f"{bag}: {count} messages on {topic}: no rate")
     return (count - 1) / ((last_ns - first_ns) * 1e-9)
+
+
+def suit_rate_of_bag(bag: Path) -> float:
+    """The rate (Hz) of an HSC4D bag's suit odometry, which sizes the graph's suit buffers (the contract's 100 Hz
+    unless the suit runs at another); ToolError if the bag has too few of its messages."""
+    return rate_of_bag(bag, SUIT_ODOMETRY_TOPIC)
 
 
 def branch_of_bag(bag: Path) -> Branch:
@@ -406,6 +415,10 @@ def _run(argv: list[str]) -> int:
                    help="playback speed factor (default 1: real time; 3 plays the bag 3x faster; above 1 the LIP "
                         "graph's stages overlap instead of passing each frame along on one thread: direct_inputs "
                         "false)")
+    p.add_argument("--paced", action="store_true",
+                   help="play no faster than the graph takes the clouds (lip_bag_play --paced-by the pose topic): "
+                        "every cloud reaches the graph on any machine, at most at --rate; without it the bag plays "
+                        "as the sensors would, and a graph that falls behind loses clouds")
     p.add_argument("--plot", type=Path, help="write a PNG of the trajectory (and skeleton frames or the map) here")
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the last frames after playback")
     p.add_argument("--refine", action="store_true",
@@ -432,9 +445,10 @@ def _run(argv: list[str]) -> int:
     else:
         if args.calibration is not None:
             raise ToolError("--calibration is for LIP bags; the HSC4D graph finds its extrinsics from the data")
-        suit_hz = suit_rate_of_bag(args.inputs)
-        print(f"suit: {suit_hz:.1f} Hz in the bag (the graph's suit_rate_hz)", flush=True)
-        node_args += ["-p", f"suit_rate_hz:={suit_hz:.1f}"]
+        suit_hz, lidar_hz = suit_rate_of_bag(args.inputs), rate_of_bag(args.inputs, branch.lidar)
+        print(f"suit: {suit_hz:.1f} Hz in the bag (the graph's suit_rate_hz); LiDAR: {lidar_hz:.1f} Hz "
+              f"(its lidar_rate_hz)", flush=True)
+        node_args += ["-p", f"suit_rate_hz:={suit_hz:.1f}", "-p", f"lidar_rate_hz:={lidar_hz:.1f}"]
     refined = args.outputs.with_name(args.outputs.name + "_refined") if args.refine else None
     if args.refine and branch is LIP:
         raise ToolError("--refine is for HSC4D bags (the offline refinement of the HSC4D branch)")
@@ -449,8 +463,9 @@ def _run(argv: list[str]) -> int:
                            stdout=subprocess.DEVNULL)
     procs = [node, recorder]
     try:
+        pacing = ["--paced-by", branch.pose_topic] if args.paced else []
         play = start_child([installed_script("lip_bag_play"), str(args.inputs), "--clock",
-                            "--wait-for-subscribers", "--rate", str(args.rate), "--topics", *branch.inputs])
+                            "--wait-for-subscribers", "--rate", str(args.rate), *pacing, "--topics", *branch.inputs])
         procs.append(play)
         watch.spin_while(lambda: play.poll() is None, float("inf"))
         if play.poll() is not None and play.returncode != 0:

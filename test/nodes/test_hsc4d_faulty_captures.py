@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers import HSC4D_CAPTURE, console_script
+from helpers import HSC4D_CAPTURE, HSC4D_PLAYBACK, console_script
 
 from lip_msgs_py import msg_to_diagnostics, msg_to_odometry, msg_to_pose_array, msg_to_pose_stamped
 from lip_ros.bagio import read_messages
@@ -51,8 +51,8 @@ def runs(hsc4d_run) -> dict[str, tuple[Path, Path, subprocess.CompletedProcess]]
         bag = capture.with_name(name)
         write_faulty_bag(capture, bag, faults, seed=5)
         outputs = capture.with_name(f"{name}_outputs")
-        out[name] = bag, outputs, subprocess.run([console_script("lip_process_bag"), str(bag), str(outputs)],
-                                                 capture_output=True, text=True, timeout=240)
+        command = [console_script("lip_process_bag"), str(bag), str(outputs), *HSC4D_PLAYBACK]
+        out[name] = bag, outputs, subprocess.run(command, capture_output=True, text=True, timeout=240)
     return out
 
 

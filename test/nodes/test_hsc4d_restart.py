@@ -1,11 +1,14 @@
 """fusion_node's HSC4D graph killed mid-capture and started again over real DDS: with its ``resume_file`` it goes
-on from the saved trajectory without another jump (the capture has only one, at its start)."""
+on from the saved trajectory without another jump (the capture has only one, at its start). The sensors stop while
+it is down and go on from there once both its nodes are up (a second player from where the first stopped): its
+start-up, seconds long and longer on a slower machine, takes nothing of the capture."""
 
 from __future__ import annotations
 
 import os
 import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -16,19 +19,21 @@ from geometry_msgs.msg import PoseStamped
 from helpers import console_script
 from nav_msgs.msg import Odometry
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 
-from lip_msgs_py import msg_to_odometry, msg_to_pose_stamped, read_header
-from lip_ros.bagio import read_messages
+from lip_msgs_py import msg_to_odometry, msg_to_pose_stamped, read_header, stamp_to_ns
+from lip_ros.bagio import bag_span, read_messages
 from lip_ros.core.metrics import align_yaw_translation
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, ODOMETRY_TOPIC
 from lip_ros.rig.site_bag import write_site_bag
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
+from lip_ros.tools.bag_play import CLOCK_QOS
 from lip_ros.tools.process_bag import HSC4D
 
 pytestmark = pytest.mark.ros  # DDS traffic and subprocesses
 
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-RATE = 0.5  # playback speed: the restart's start-up (imports, DDS discovery) misses a few seconds of the bag
+RATE = 0.5  # playback speed
 
 
 def _start(*args: str) -> subprocess.Popen:
@@ -59,29 +64,47 @@ def test_a_restarted_hsc4d_graph_goes_on_without_another_jump(ros_node, tmp_path
                                  RELIABLE)
     ros_node.create_subscription(PoseStamped, HSC4D_TOPICS.root_pose,
                                  lambda m: bodies.append((msg_to_pose_stamped(m), run[0])), RELIABLE)
+    clock = [0]
+    ros_node.create_subscription(Clock, "/clock", lambda m: clock.__setitem__(0, stamp_to_ns(m.clock)), CLOCK_QOS)
+
+    def play(start_s: float) -> subprocess.Popen:
+        return subprocess.Popen([console_script("lip_bag_play"), str(bag), "--clock", "--rate", str(RATE),
+                                 "--start", f"{start_s:.3f}", "--wait-for-subscribers", "--topics", *HSC4D.inputs],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
     graph = _start(*args)
-    player = subprocess.Popen([console_script("lip_bag_play"), str(bag), "--clock", "--rate", str(RATE),
-                               "--wait-for-subscribers", "--topics", *HSC4D.inputs],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    player = play(0.0)
     out = ""
+    log: list[str] = []
     try:
         # once it has caught up with the sweeps held for the jump (at 10 s of the bag) and saved its state
         _spin_until(ros_node, lambda: state.is_file() and len(fused) > 1
                     and fused[-1][0].stamp_ns - fused[0][0].stamp_ns > 10e9, graph, 120.0)
         os.killpg(graph.pid, signal.SIGKILL)  # a crash of both processes, not a clean shutdown
         out += graph.communicate(timeout=10)[0]
+        player.send_signal(signal.SIGINT)
+        player.wait(timeout=30)
         deadline = time.monotonic() + 1.0  # what the killed graph sent before it died
         while time.monotonic() < deadline:
             rclpy.spin_once(ros_node, timeout_sec=0.1)
         run[0] = 1
         graph = _start(*args)
+        reader = threading.Thread(target=lambda: log.extend(graph.stdout), daemon=True)
+        reader.start()
+        _spin_until(ros_node, lambda: sum("]: ready;" in line for line in log) == 2, graph, 120.0)  # both nodes
+        player = play((clock[0] - bag_span(bag)[0]) * 1e-9)
         _spin_until(ros_node, lambda: player.poll() is not None, graph, 120.0)
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
             rclpy.spin_once(ros_node, timeout_sec=0.1)
     finally:
         graph.send_signal(signal.SIGINT)
-        out += graph.communicate(timeout=20)[0]
+        if run[0]:
+            graph.wait(timeout=20)
+            reader.join(timeout=10)
+            out += "".join(log)
+        else:
+            out += graph.communicate(timeout=20)[0]
         if player.poll() is None:
             player.send_signal(signal.SIGINT)
             player.wait(timeout=30)

@@ -5,9 +5,11 @@ that steps back or ahead (a PTP step, a bag played again) loses nothing and keep
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -64,13 +66,14 @@ def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module", params=["sensors", "clock"])
 def run(request: pytest.FixtureRequest, capture: Path) -> tuple[Path, Path, dict, subprocess.CompletedProcess]:
-    """``lip_process_bag`` on the capture with one group of faults: (faulty bag, outputs, faults, process)."""
+    """``lip_process_bag --paced`` on the capture with one group of faults: (faulty bag, outputs, faults,
+    process)."""
     faults = SENSOR_FAULTS if request.param == "sensors" else CLOCK_FAULTS
     bag = capture.with_name(request.param)
     write_faulty_bag(capture, bag, [FaultSpec(kind, *window) for kind, (window, _) in faults.items()], seed=5)
     out = capture.with_name(f"{request.param}_outputs")
-    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out)], capture_output=True, text=True,
-                          timeout=240)
+    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out), "--paced"], capture_output=True,
+                          text=True, timeout=240)
     return bag, out, faults, proc
 
 
@@ -83,7 +86,11 @@ def test_no_process_fails_and_every_frame_is_accounted_for(run) -> None:
     assert summary.received == summary.frames_in == bag_topics(bag)[LIDAR_TOPIC].count
     assert sum(summary.frames.values()) == summary.frames_in
     if "clock_back" in faults:  # a clock step loses no frame: only those before the lock, and the calibration
-        assert set(summary.frames) == {"pose", "calibrating", "skipped: no_performer"}, summary.frames
+        # ... and the frame on its way from the segmentation when the DOTs' new time line overtakes it (it waits on
+        # the old one for data that never comes: docs/reliability.md "Clock steps"; seen once, paced, session 38)
+        skipped = {k: v for k, v in summary.frames.items() if k.startswith("skipped: clock stepped back")}
+        assert set(summary.frames) - set(skipped) == {"pose", "calibrating", "skipped: no_performer"}, summary.frames
+        assert sum(skipped.values()) <= 1, summary.frames
         assert summary.frames["calibrating"] + summary.frames["skipped: no_performer"] <= 50
 
 
@@ -150,7 +157,8 @@ def test_a_bag_played_again_is_posed_again_with_the_same_calibration(capture: Pa
                                  LIP_TOPICS.root_pose, "/diagnostics"], stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL)
     player = subprocess.Popen([console_script("lip_bag_play"), str(capture), "--clock", "--loop",
-                               "--wait-for-subscribers", "--rate", "2", "--topics", *INPUT_TOPICS],
+                               "--wait-for-subscribers", "--rate", "2", "--paced-by", LIP_TOPICS.root_pose,
+                               "--topics", *INPUT_TOPICS],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 120.0
@@ -189,9 +197,14 @@ def test_lip_process_bag_stops_cleanly_on_sigterm(capture: Path, tmp_path: Path)
     bag), status 0, and the summary says it was cut short."""
     proc = subprocess.Popen([console_script("lip_process_bag"), str(capture), str(tmp_path / "out")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(10.0)  # start-up, then a few seconds of the capture
+    played = []  # stderr up to the player's progress 3 s into the capture (after start-up, however long it takes)
+    for line in proc.stderr:
+        played.append(line)
+        if re.match(r"lip_bag_play: +([3-9]|\d\d+)\.\d / ", line):
+            break
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)
+    err = "".join(played) + err
     assert proc.returncode == 0, err[-3000:]
     assert "interrupted (SIGINT or SIGTERM)" in out and "Traceback" not in err and "terminate called" not in err
     assert bag_topics(tmp_path / "out")["/diagnostics"].count > 0  # the recorder closed its bag
@@ -231,7 +244,7 @@ def test_a_slow_consumer_of_the_outputs_does_not_slow_the_graph(tmp_path: Path) 
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert slow.stdout.readline().strip() == "ready"
-        proc = subprocess.run([console_script("lip_process_bag"), str(DEMO_BAG), str(tmp_path / "out")],
+        proc = subprocess.run([console_script("lip_process_bag"), str(DEMO_BAG), str(tmp_path / "out"), "--paced"],
                               capture_output=True, text=True, timeout=180)
     finally:
         slow.send_signal(signal.SIGINT)
@@ -240,9 +253,9 @@ def test_a_slow_consumer_of_the_outputs_does_not_slow_the_graph(tmp_path: Path) 
     summary = summarize_outputs(DEMO_BAG, tmp_path / "out")
     assert summary.received == summary.frames_in and sum(summary.frames.values()) == summary.frames_in
     assert summary.frames["pose"] == bag_topics(tmp_path / "out")[LIP_TOPICS.root_pose].count > summary.frames_in / 2
-    # the graph's own latency as without the consumer (the demo bag's p50 is about 20 ms; waiting on the consumer
-    # would add 300 ms a frame)
-    assert summary.latency_ms["p50"] < 60 and summary.latency_ms["p90"] < 120, summary.latency_ms
+    # the graph's own latency, not the consumer's: waiting on it would add 300 ms a frame, and more each frame
+    # (the demo bag's p50 is about 20 ms on an idle machine, 74 ms on one twice as slow sharing it with the tests)
+    assert summary.latency_ms["p50"] < 150 and summary.latency_ms["p90"] < 300, summary.latency_ms
     received = int(out.split("received")[-1])
     assert received > 30, (out, err[-2000:])  # it was subscribed and served, at its own pace
 
@@ -274,6 +287,14 @@ def test_a_graph_killed_during_a_fault_resumes_with_what_it_saved(capture: Path,
         return subprocess.Popen([console_script("fusion_node"), *args], stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True)
 
+    restarted, ready = [], []  # the restarted graph's log lines; the clock as each of its nodes said it was ready
+
+    def read_log(proc: subprocess.Popen) -> None:
+        for line in proc.stdout:
+            restarted.append(line)
+            if "]: ready;" in line:
+                ready.append(clock[0])
+
     graph = start()
     player = subprocess.Popen([console_script("lip_bag_play"), str(bag), "--clock", "--wait-for-subscribers",
                                "--topics", *INPUT_TOPICS], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -287,6 +308,8 @@ def test_a_graph_killed_during_a_fault_resumes_with_what_it_saved(capture: Path,
         logs.append(graph.communicate(timeout=10)[0])
         run[0], killed_at = 1, clock[0]
         graph = start()
+        reader = threading.Thread(target=read_log, args=(graph,), daemon=True)
+        reader.start()
         while player.poll() is None and time.monotonic() < deadline:
             rclpy.spin_once(ros_node, timeout_sec=0.1)
         end = time.monotonic() + 3.0  # the last frames through the graph
@@ -294,7 +317,12 @@ def test_a_graph_killed_during_a_fault_resumes_with_what_it_saved(capture: Path,
             rclpy.spin_once(ros_node, timeout_sec=0.1)
     finally:
         graph.send_signal(signal.SIGINT)
-        logs.append(graph.communicate(timeout=30)[0])
+        if run[0]:
+            graph.wait(timeout=30)
+            reader.join(timeout=10)
+            logs.append("".join(restarted))
+        else:
+            logs.append(graph.communicate(timeout=30)[0])
         if player.poll() is None:
             player.send_signal(signal.SIGINT)
             player.wait(timeout=30)
@@ -303,8 +331,10 @@ def test_a_graph_killed_during_a_fault_resumes_with_what_it_saved(capture: Path,
     assert "resuming: the performer was last seen" in logs[1], logs[1][-3000:]
     after = [(stamp, position) for stamp, position, r in poses if r == 1]
     assert np.isfinite(np.array([p for _, p in after])).all()
-    # started again (a few seconds of start-up), it poses the next frame it can: the first within 6 s of the kill
-    # (measured 2.8 s: the DOT is silent until 2 s after it), and then all but the frames the later faults hit
-    # (measured 105 poses of the 180 frames left)
-    assert after and after[0][0] - killed_at < 6 * 10**9, (len(after), after[0][0] - killed_at if after else None)
+    # started again, it poses the next frame it can: the first within 6 s of its nodes being ready (its start-up
+    # takes seconds of the capture, more on a slower machine; 2.8 s after the kill here once: the DOT is silent until
+    # 2 s after it), and then all but the frames the later faults hit (measured 105 poses of the 180 frames left)
+    assert len(ready) == 2, logs[-1][-3000:]  # the calibration and pose nodes
+    up_at = max(killed_at, *ready)
+    assert after and after[0][0] - up_at < 6 * 10**9, (len(after), after[0][0] - up_at if after else None)
     assert len(after) >= 50, len(after)

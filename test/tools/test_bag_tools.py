@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import sys
 import time
 from collections import defaultdict
 from dataclasses import dataclass
@@ -154,6 +155,57 @@ def test_rate_two_plays_in_half_the_time(tmp_path: Path) -> None:
     ratio = (recorded[-1].log_ns - recorded[0].log_ns) / (original[-1].log_ns - original[0].log_ns)
     assert 0.45 < ratio < 0.55, ratio
     assert set(bag_topics(session.bag)) == set(topics)  # nothing else was played
+
+
+SLOW_GRAPH = """
+import sys, time, rclpy
+from geometry_msgs.msg import PoseStamped
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2
+rclpy.init()
+node = rclpy.create_node("slow_graph")
+pose = node.create_publisher(PoseStamped, "/slow/pose", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+got = [0]
+def take(cloud):
+    got[0] += 1
+    print("received", got[0], flush=True)
+    time.sleep(0.25)  # a graph 2.5 times slower than the LiDAR
+    msg = PoseStamped()
+    msg.header = cloud.header
+    pose.publish(msg)
+node.create_subscription(PointCloud2, "/ouster/points", take, qos_profile_sensor_data)  # depth 5, best effort
+print("ready", flush=True)
+try:
+    while rclpy.ok():
+        rclpy.spin_once(node, timeout_sec=0.1)
+except KeyboardInterrupt:
+    pass
+"""
+
+
+@pytest.mark.parametrize("pose_topic", ["/slow/pose", "/nobody/pose"])
+def test_paced_by_the_graph_every_cloud_reaches_a_slow_graph(pose_topic: str) -> None:
+    """``--paced-by``: a graph 2.5x slower than the LiDAR (best-effort queue of 5) gets every cloud, the player
+    waiting for its poses; paced by a topic nothing publishes, the player plays in real time and the graph loses
+    clouds (the test can tell)."""
+    graph = subprocess.Popen([sys.executable, "-c", SLOW_GRAPH], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True)
+    try:
+        assert graph.stdout.readline().strip() == "ready"
+        play = subprocess.run([console_script("lip_bag_play"), str(DEMO_BAG), "--start", "10", "--wait-for-subscribers",
+                               "--paced-by", pose_topic, "--topics", "/ouster/points"],
+                              capture_output=True, text=True, timeout=TIMEOUT_S)
+        time.sleep(1.0)  # the last clouds through the graph
+    finally:
+        _, out, err = _stop(graph, signal.SIGINT)
+    assert play.returncode == 0, play.stderr
+    clouds = sum(1 for _ in read_raw(DEMO_BAG, ["/ouster/points"], bag_span(DEMO_BAG)[0] + 10 * 10**9))
+    received = int(out.split("received")[-1]) if "received" in out else 0
+    held = float(play.stdout.split("clouds held ")[1].split(" s")[0])
+    if pose_topic == "/slow/pose":
+        assert received == clouds and held > 0.0, (received, clouds, play.stdout)
+    else:
+        assert received < 0.8 * clouds and held == 0.0, (received, clouds, play.stdout)
 
 
 def test_loop_plays_until_interrupted() -> None:

@@ -224,6 +224,7 @@ class BodyNode(GraphNode):
                            lambda data, segment=segment: self._on_imu(segment, data), suit_input(p["suit_rate_hz"]),
                            raw=True, polled=True)
         self.create_timer(0.02, self._drain, self.group, clock=self.steady)
+        self.get_logger().info("ready; waiting for the trajectory node's fused poses")
 
     def _pose_publishers(self, topics: Any) -> dict[str, Any]:
         """A reliable publisher per pose output of ``topics`` (a PoseTopics)."""

@@ -64,15 +64,13 @@ from lip_ros.nodes.base import (
     positive,
     run_nodes,
 )
-from lip_ros.nodes.lip import LIP_PARAMS_FILE
+from lip_ros.nodes.lip import CALIBRATION_NODE_NAME, DOT_LATENCY_VALUE, LIP_PARAMS_FILE
 from lip_ros.nodes.lip.ground import GROUND_PARAM, subscribe_ground
 
 __all__ = ["CalibrationNode", "main", "DOT_LATENCY_VALUE", "DOT_STAMP_SPREAD_S"]
 
 #: DOTs stamped on arrival at one host agree on receive time less stamp; one this much off the others' is a WARN.
 DOT_STAMP_SPREAD_S = 0.025
-#: The value of ``calibration_node: frames`` on /diagnostics with the DOT latencies in use.
-DOT_LATENCY_VALUE = "DOT latency taken off (ms)"
 
 
 def _four_topics(value: Any) -> str | None:
@@ -90,7 +88,7 @@ def _latencies(value: Any) -> str | None:
 class CalibrationNode(GraphNode):
     """The IMU stage of the graph: synchronisation, calibration, calibrated bone orientations and accelerations."""
 
-    NAME = "calibration_node"
+    NAME = CALIBRATION_NODE_NAME
     PARAMS_FILE = LIP_PARAMS_FILE
     PARAMS = {
         "imu_topics": Param("the four DOT Imu inputs, in the order " + ", ".join(IMU_NAMES), _four_topics),
