@@ -22,6 +22,18 @@ HSC4D_CAPTURE = {"seed": 5, "seconds": 20.0}
 HSC4D_PLAYBACK = ("--paced", "--rate", "0.5")
 
 
+#: The end of a Python script that a test runs as a ROS process (``python -c``): says "ready" and spins its
+#: ``node`` until SIGINT.
+SPIN_UNTIL_SIGINT = """
+print("ready", flush=True)
+try:
+    while rclpy.ok():
+        rclpy.spin_once(node, timeout_sec=0.1)
+except KeyboardInterrupt:
+    pass
+"""
+
+
 def console_script(name: str) -> str:
     """Path of one of the package's console scripts in the running environment."""
     exe = shutil.which(name, path=str(Path(sys.executable).parent))

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import DEMO_BAG, console_script
+from helpers import DEMO_BAG, SPIN_UNTIL_SIGINT, console_script
 
 from lip_msgs_py import msg_to_diagnostics, msg_to_pose_array, msg_to_pose_stamped
 from lip_ros.bagio import bag_topics, read_messages
@@ -223,12 +223,7 @@ def slow(_msg):
 for topic, msgtype in zip(sys.argv[1::2], sys.argv[2::2]):
     node.create_subscription(rclpy_message_class(msgtype), topic, slow,
                              QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-print("ready", flush=True)
-try:
-    while rclpy.ok():
-        rclpy.spin_once(node, timeout_sec=0.1)
-except KeyboardInterrupt:
-    pass
+""" + SPIN_UNTIL_SIGINT + """
 print("received", got[0], flush=True)
 """
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-from helpers import DEMO_BAG, console_script
+from helpers import DEMO_BAG, SPIN_UNTIL_SIGINT, console_script
 from mcap.reader import make_reader
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import QosDurability, QosReliability
@@ -174,13 +174,7 @@ def take(cloud):
     msg.header = cloud.header
     pose.publish(msg)
 node.create_subscription(PointCloud2, "/ouster/points", take, qos_profile_sensor_data)  # depth 5, best effort
-print("ready", flush=True)
-try:
-    while rclpy.ok():
-        rclpy.spin_once(node, timeout_sec=0.1)
-except KeyboardInterrupt:
-    pass
-"""
+""" + SPIN_UNTIL_SIGINT
 
 
 @pytest.mark.parametrize("pose_topic", ["/slow/pose", "/nobody/pose"])
