@@ -12,14 +12,15 @@ the bag's own time (as ``ros2 bag play --loop``: /clock and the stamps go back);
 with ``--time-goes-on`` each pass goes on from where the last one ended
 instead: /clock and every header stamp move on by the played window's length
 plus :data:`LOOP_GAP_NS`, as one long capture would (a soak test).
-``--paced-by`` plays no faster than the graph it feeds can take (a bag
-processed offline, every cloud posed, on any machine): each point cloud waits
+``--paced-by`` plays no faster than the graph it feeds poses (a bag processed
+offline): each point cloud waits
 until the graph's latest pose on POSE_TOPIC (geometry_msgs/PoseStamped) is
 stamped no earlier than the cloud ``--ahead`` clouds before it, and the timing
 of everything after the wait moves on by the wait (/clock stands still
 meanwhile). Until the first pose, and while none has come for
 :data:`PACING_STALL_S` (a graph calibrating, waiting for a jump, or seeing
-nobody), it plays at ``--rate``. Progress on stderr, a summary on stdout.
+nobody), it plays at ``--rate``, and a graph too slow then still loses clouds.
+Progress on stderr, a summary on stdout.
 """
 
 from __future__ import annotations
