@@ -8,6 +8,8 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 INSTALLED := $(VENV)/.installed
 OUT ?= out
+# make test: pytest-xdist workers (each in a ROS domain of its own; test/conftest.py)
+TEST_WORKERS ?= 2
 
 # Keep DDS on this machine's loopback, in a domain of its own per run.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
@@ -48,7 +50,7 @@ demo-bag: $(INSTALLED)
 
 test: $(INSTALLED)
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest test -q -p no:cacheprovider --durations=15
+	$(PY) -m pytest test -q -p no:cacheprovider -n $(TEST_WORKERS) --durations=15
 
 bench: $(INSTALLED)
 	$(PY) benchmarks/bench_msgs.py

@@ -31,6 +31,7 @@ CORE = [
 ]
 TEST = [
     "pytest>=8,<10",
+    "pytest-xdist>=3.6,<4",  # make test runs the suite on 2 workers
     "ruff==0.17.5",  # make test lints with it (pyproject.toml [tool.ruff])
     "colcon-core==0.21.3",
     "colcon-ros==0.5.0",
