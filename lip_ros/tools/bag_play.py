@@ -12,14 +12,17 @@ the bag's own time (as ``ros2 bag play --loop``: /clock and the stamps go back);
 with ``--time-goes-on`` each pass goes on from where the last one ended
 instead: /clock and every header stamp move on by the played window's length
 plus :data:`LOOP_GAP_NS`, as one long capture would (a soak test).
-``--paced-by`` plays no faster than the graph it feeds poses (a bag processed
-offline): each point cloud waits
-until the graph's latest pose on POSE_TOPIC (geometry_msgs/PoseStamped) is
-stamped no earlier than the cloud ``--ahead`` clouds before it, and the timing
-of everything after the wait moves on by the wait (/clock stands still
-meanwhile). Until the first pose, and while none has come for
-:data:`PACING_STALL_S` (a graph calibrating, waiting for a jump, or seeing
-nobody), it plays at ``--rate``, and a graph too slow then still loses clouds.
+``--paced-by`` plays no faster than the graph it feeds (a bag processed
+offline): each point cloud waits while the graph's latest pose on POSE_TOPIC
+(geometry_msgs/PoseStamped) is stamped before the cloud ``--ahead`` clouds
+before it, or while the graph's input of the cloud's topic has taken more than
+:data:`UNRECEIVED_S` of the clouds sent fewer than were sent (the ``received``
+count it reports on /diagnostics, as every lip_ros node does for its inputs:
+this paces a graph that poses nothing yet, calibrating or waiting for a jump);
+the timing of everything after the wait moves on by the wait (/clock stands
+still meanwhile). A measure that has not moved on for :data:`PACING_STALL_S`
+holds nothing (a graph that poses nobody; clouds lost are not waited for
+again); with neither it plays at ``--rate``.
 Progress on stderr, a summary on stdout.
 """
 
@@ -35,6 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
@@ -59,7 +63,11 @@ ACK_TIMEOUT = Duration(seconds=2)  # reliable topics: wait this long at the end 
 LINGER_S = 0.5  # best-effort topics: stay this long at the end, as subscribers lose what an exiting writer sent last
 LOOP_GAP_NS = 100_000_000  # --time-goes-on: from the end of one pass to the start of the next, in bag time
 DEFAULT_AHEAD = 3  # --paced-by: clouds the graph may have unposed (within a LiDAR input queue's depth of 5)
-PACING_STALL_S = 2.0  # --paced-by: no pose for this long (wall time) and the player goes on at --rate
+PACING_STALL_S = 2.0  # --paced-by: a measure that has not moved on for this long (wall time) holds nothing
+#: --paced-by: the seconds of clouds (at the bag's rate) the graph's input may not have taken yet (HSC4D's cloud
+#: queue holds 2 s; the graph reports every 0.5 s under lip_process_bag, 1 s by default)
+UNRECEIVED_S = 1.0
+DIAGNOSTICS_TOPIC = "/diagnostics"
 PACED_TYPE = "sensor_msgs/msg/PointCloud2"  # the messages --paced-by holds
 
 
@@ -148,8 +156,10 @@ class BagPlayer:
         self.stamped = {t for t, c in plan.classes.items()
                         if next(iter(c.get_fields_and_field_types().items()), None) == ("header", "std_msgs/Header")}
         self.stats = PlayStats(per_topic=dict.fromkeys(plan.topics, 0))
-        self.pacer = None if plan.paced_by is None else Pacer(node, plan.paced_by, plan.ahead, stop)
-        self.paced = {t for t, i in plan.topics.items() if i.msgtype == PACED_TYPE} if self.pacer else set()
+        self.paced = {t for t, i in plan.topics.items() if i.msgtype == PACED_TYPE} if plan.paced_by else set()
+        span_s = max(plan.end_ns - bag_span(plan.bag)[0], 1) / NS_PER_S
+        unreceived = {t: max(1, round(UNRECEIVED_S * plan.topics[t].count / span_s)) for t in self.paced}
+        self.pacer = None if plan.paced_by is None else Pacer(node, plan.paced_by, plan.ahead, unreceived, stop)
 
     def run(self) -> PlayStats:
         """Wait for subscribers if asked, play (looping if asked), let reliable topics deliver; the stats."""
@@ -205,7 +215,7 @@ class BagPlayer:
                 if self.stop.is_set():
                     return
                 if m.topic in self.paced:
-                    held = self.pacer.hold(cdr_stamp(m.data) + offset_ns)
+                    held = self.pacer.hold(m.topic, cdr_stamp(m.data) + offset_ns)
                     wall0, next_clock, due = wall0 + held, next_clock + held, due + held
                     self.stats.held_s += held / NS_PER_S
                 stamped = offset_ns and m.topic in self.stamped
@@ -226,16 +236,24 @@ class BagPlayer:
 
 
 class Pacer:
-    """``--paced-by``: holds each cloud until the graph has posed all but ``ahead`` of the clouds before it, as its
-    latest pose on ``pose_topic`` says (taken on a thread of its own)."""
+    """``--paced-by``: holds each cloud while the graph lags, by its latest pose on ``pose_topic`` (older than the
+    cloud ``ahead`` before) or by its input of the cloud's topic (more than ``unreceived[topic]`` of the clouds sent
+    not taken, by the ``received`` counts on /diagnostics); both taken on a thread of its own."""
 
-    def __init__(self, node: Node, pose_topic: str, ahead: int, stop: threading.Event) -> None:
-        self.ahead, self.stop = ahead, stop
+    def __init__(self, node: Node, pose_topic: str, ahead: int, unreceived: dict[str, int],
+                 stop: threading.Event) -> None:
+        self.ahead, self.unreceived, self.stop = ahead, dict(unreceived), stop
         self._sent: deque[int] = deque(maxlen=ahead)  # header stamps (ns) of the last clouds published
         self._pose: tuple[int, int] | None = None  # (stamp, monotonic ns of its arrival) of the latest pose
+        self._count = dict.fromkeys(unreceived, 0)  # topic -> clouds published
+        self._reports: dict[str, tuple[int, int]] = {}  # status name -> (its "received", its node's counts before)
+        self._taken: dict[str, tuple[int, int]] = {}  # topic -> (clouds the graph took, monotonic ns that grew)
+        self._lost = dict.fromkeys(unreceived, 0)  # topic -> clouds sent that it never took (not waited for again)
         self._posed = threading.Condition()
         node.create_subscription(PoseStamped, pose_topic, self._on_pose,
                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics,
+                                 QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
         self._executor = SingleThreadedExecutor(context=node.context)
         self._executor.add_node(node)
         self._thread = threading.Thread(target=self._executor.spin, name="pacer", daemon=True)
@@ -246,25 +264,55 @@ class Pacer:
             self._pose = stamp_to_ns(msg.header.stamp), time.monotonic_ns()
             self._posed.notify_all()
 
-    def _lagging(self) -> bool:
-        """Whether the graph is behind: its latest pose older than the cloud ``ahead`` before, and recent."""
-        if self._pose is None or len(self._sent) < self.ahead:
-            return False
-        stamp, arrived = self._pose
-        return stamp < self._sent[0] and time.monotonic_ns() - arrived < PACING_STALL_S * NS_PER_S
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        """The ``received`` counts of the inputs of the paced topics (``hardware_id``); a count that went down is a
+        node started again, its counts before added on."""
+        with self._posed:
+            for status in msg.status:
+                received = next((v.value for v in status.values if v.key == "received"), None)
+                if status.hardware_id not in self._count or received is None or not received.isdigit():
+                    continue
+                last, before = self._reports.get(status.name, (0, 0))
+                self._reports[status.name] = int(received), before + (last if int(received) < last else 0)
+                taken = int(received) + self._reports[status.name][1]
+                if status.hardware_id not in self._taken:  # the graph took clouds before this player: not ours
+                    self._lost[status.hardware_id] = min(0, self._count[status.hardware_id] - taken)
+                if taken > self._taken.get(status.hardware_id, (-1, 0))[0]:
+                    self._taken[status.hardware_id] = taken, time.monotonic_ns()
+            self._posed.notify_all()
 
-    def hold(self, stamp_ns: int) -> int:
-        """Wait while the graph lags (or until stopped), then count the cloud stamped ``stamp_ns`` as sent; the
-        wall time waited (ns)."""
+    def _lagging(self, topic: str) -> bool:
+        """Whether the graph is behind: its latest pose older than the cloud ``ahead`` before, and recent; or more
+        than ``unreceived`` of ``topic``'s clouds sent not taken, its count grown recently (clouds that were not
+        taken for that long are lost: not waited for again)."""
+        now = time.monotonic_ns()
+        if self._pose is not None and len(self._sent) == self.ahead:
+            stamp, arrived = self._pose
+            if stamp < self._sent[0] and now - arrived < PACING_STALL_S * NS_PER_S:
+                return True
+        if topic not in self._taken:
+            return False
+        taken, grew = self._taken[topic]
+        if self._count[topic] - self._lost[topic] - taken <= self.unreceived[topic]:
+            return False
+        if now - grew < PACING_STALL_S * NS_PER_S:
+            return True
+        self._lost[topic] = self._count[topic] - taken
+        return False
+
+    def hold(self, topic: str, stamp_ns: int) -> int:
+        """Wait while the graph lags (or until stopped), then count the cloud of ``topic`` stamped ``stamp_ns`` as
+        sent; the wall time waited (ns)."""
         start = time.monotonic_ns()
         with self._posed:
-            while self._lagging() and not self.stop.is_set():
+            while self._lagging(topic) and not self.stop.is_set():
                 self._posed.wait(0.05)
             self._sent.append(stamp_ns)
+            self._count[topic] += 1
         return time.monotonic_ns() - start
 
     def close(self) -> None:
-        """Stop taking poses."""
+        """Stop taking poses and reports."""
         self._executor.shutdown(timeout_sec=1.0)
         self._thread.join(timeout=2.0)
 
@@ -286,8 +334,10 @@ def parser() -> ArgumentParser:
     p.add_argument("--wait-for-subscribers", action="store_true",
                    help="start only when every played topic has a subscriber")
     p.add_argument("--paced-by", metavar="POSE_TOPIC",
-                   help="hold each point cloud until the graph's latest pose on this geometry_msgs/PoseStamped topic "
-                        "is stamped no earlier than the cloud --ahead clouds before it (no faster than the graph)")
+                   help="hold each point cloud while the graph's latest pose on this geometry_msgs/PoseStamped topic "
+                        "is stamped before the cloud --ahead clouds before it, or while the graph's input of the "
+                        f"cloud's topic has taken more than {UNRECEIVED_S:g} s of clouds fewer than were sent (its "
+                        f"received count on {DIAGNOSTICS_TOPIC}): no faster than the graph")
     p.add_argument("--ahead", type=int, default=DEFAULT_AHEAD, metavar="N",
                    help=f"with --paced-by: clouds the graph may have unposed (default {DEFAULT_AHEAD})")
     return p
@@ -308,7 +358,7 @@ def _play(argv: list[str]) -> int:
         progress.done()
         node.destroy_node()
     topics = ", ".join(f"{t} {n}" for t, n in stats.per_topic.items())
-    held = f", clouds held {stats.held_s:.1f} s for {plan.paced_by}" if plan.paced_by else ""
+    held = f", clouds held {stats.held_s:.1f} s for the graph" if plan.paced_by else ""
     print(f"{PROG}: {stats.messages} messages in {time.monotonic() - t0:.1f} s ({stats.passes} pass(es), "
           f"max lag {stats.max_lag_ms:.1f} ms{held}{', interrupted' if stop.is_set() else ''}): {topics}")
     return 0

@@ -12,12 +12,12 @@ diagnostics), stops them and prints a summary: frames in/out/skipped,
 latency percentiles, accuracy against the truth when IN has it, and the
 wall time from the start of playback to the last pose as a multiple of real
 time (``--rate`` plays the bag faster). ``--paced`` plays no faster than the
-graph poses the clouds (``lip_bag_play --paced-by``), as processing a recorded
-bag wants; before the graph's first pose (LIP calibrating, HSC4D waiting for
-the jump) and while it posts none it plays at ``--rate``, and a graph too slow
-then still loses clouds (docs/reliability.md "Bags played paced"). Without it
-the bag plays as the sensors would, and a graph too slow for them loses clouds,
-as it would live. With ``--plot`` it also draws the
+graph takes and poses the clouds (``lip_bag_play --paced-by``: its poses, and
+the count of clouds its LiDAR input reports on /diagnostics, which paces it
+before the first pose too, LIP calibrating, HSC4D waiting for the jump), as
+processing a recorded bag wants (docs/reliability.md "Bags played paced").
+Without it the bag plays as the sensors would, and a graph too slow for them
+loses clouds, as it would live. With ``--plot`` it also draws the
 trajectory and a few skeleton frames (LIP), or the trajectory from above, its
 height over time against the truth and the suit's own odometry, and the map
 (HSC4D: :mod:`lip_ros.tools.hsc4d_outputs`).
@@ -418,9 +418,9 @@ def _run(argv: list[str]) -> int:
                         "graph's stages overlap instead of passing each frame along on one thread: direct_inputs "
                         "false)")
     p.add_argument("--paced", action="store_true",
-                   help="play no faster than the graph poses the clouds (lip_bag_play --paced-by the pose topic), "
-                        "at most at --rate; before its first pose it plays at --rate; without it the bag plays as "
-                        "the sensors would, and a graph that falls behind loses clouds")
+                   help="play no faster than the graph takes and poses the clouds (lip_bag_play --paced-by the pose "
+                        "topic: its poses and its LiDAR input's counts on /diagnostics), at most at --rate; without "
+                        "it the bag plays as the sensors would, and a graph that falls behind loses clouds")
     p.add_argument("--plot", type=Path, help="write a PNG of the trajectory (and skeleton frames or the map) here")
     p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the last frames after playback")
     p.add_argument("--refine", action="store_true",

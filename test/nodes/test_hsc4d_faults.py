@@ -45,9 +45,10 @@ def test_bad_input_is_skipped_and_reported(ros_node) -> None:
         points["x"], points["y"], points["z"] = 5.0, np.linspace(-2, 2, 64), np.linspace(-1, 1, 16)[:, None]
         empty = points.copy()
         empty["x"] = np.nan
-        deadline = time.monotonic() + 30.0
-        while not all(p.get_subscription_count() for p in (pelvis, odometry, clouds)):
-            assert time.monotonic() < deadline and proc.poll() is None, "fusion_node did not subscribe"
+        deadline = time.monotonic() + 60.0  # both nodes up (the body node, a process of its own, imports torch)
+        while not (all(p.get_subscription_count() for p in (pelvis, odometry, clouds))
+                   and any(s.name == "hsc4d_body_node: frames" for m in latest for s in m.status)):
+            assert time.monotonic() < deadline and proc.poll() is None, "fusion_node did not start"
             rclpy.spin_once(ros_node, timeout_sec=0.1)
         t_start, k = time.monotonic(), 0
         while k < 400:  # 4 s at 100 Hz

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-from helpers import DEMO_BAG, SPIN_UNTIL_SIGINT, console_script
+from helpers import DEMO_BAG, console_script
 from mcap.reader import make_reader
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import QosDurability, QosReliability
@@ -159,47 +159,75 @@ def test_rate_two_plays_in_half_the_time(tmp_path: Path) -> None:
 
 SLOW_GRAPH = """
 import sys, time, rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
+reports = sys.argv[1]  # "poses", "counts" (on /diagnostics, as every lip_ros node does for its inputs) or "nothing"
 rclpy.init()
 node = rclpy.create_node("slow_graph")
 pose = node.create_publisher(PoseStamped, "/slow/pose", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-got = [0]
+diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+got, last = [0], [0.0]
 def take(cloud):
     got[0] += 1
-    print("received", got[0], flush=True)
     time.sleep(0.25)  # a graph 2.5 times slower than the LiDAR
+    last[0] = time.monotonic()
     msg = PoseStamped()
     msg.header = cloud.header
-    pose.publish(msg)
-node.create_subscription(PointCloud2, "/ouster/points", take, qos_profile_sensor_data)  # depth 5, best effort
-""" + SPIN_UNTIL_SIGINT
+    if reports == "poses":
+        pose.publish(msg)
+def report():
+    status = DiagnosticStatus(name="slow_graph: lidar", hardware_id="/ouster/points",
+                              values=[KeyValue(key="received", value=str(got[0]))])
+    diagnostics.publish(DiagnosticArray(status=[status]))
+if reports == "counts":
+    node.create_timer(0.5, report)
+# best effort, depth 5 as LIP's segmentation node; 20 (2 s) as HSC4D's trajectory node where only counts pace
+depth = 20 if reports == "counts" else 5
+node.create_subscription(PointCloud2, "/ouster/points", take, QoSProfile(depth=depth,
+                         reliability=qos_profile_sensor_data.reliability))
+print("ready", flush=True)
+while not got[0] or time.monotonic() - last[0] < 3.0:  # until 3 s without a cloud: its backlog worked off
+    rclpy.spin_once(node, timeout_sec=0.1)
+print("received", got[0], flush=True)
+"""
 
 
-@pytest.mark.parametrize("pose_topic", ["/slow/pose", "/nobody/pose"])
-def test_paced_by_the_graph_every_cloud_reaches_a_slow_graph(pose_topic: str) -> None:
-    """``--paced-by``: a graph 2.5x slower than the LiDAR (best-effort queue of 5) gets every cloud, the player
-    waiting for its poses; paced by a topic nothing publishes, the player plays in real time and the graph loses
-    clouds (the test can tell)."""
-    graph = subprocess.Popen([sys.executable, "-c", SLOW_GRAPH], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True)
+@pytest.mark.parametrize("reports", ["poses", "counts", "nothing"])
+def test_paced_by_the_graph_every_cloud_reaches_a_slow_graph(reports: str) -> None:
+    """``--paced-by``: a graph 2.5x slower than the LiDAR gets every cloud, the player waiting for its poses (a
+    best-effort queue of 5), or, where it poses nothing, for the ``received`` count of its input on /diagnostics (a
+    queue of 2 s); a graph that reports neither gets the clouds in real time and loses some (the test can tell)."""
+    graph = subprocess.Popen([sys.executable, "-c", SLOW_GRAPH, reports], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
     try:
         assert graph.stdout.readline().strip() == "ready"
         play = subprocess.run([console_script("lip_bag_play"), str(DEMO_BAG), "--start", "10", "--wait-for-subscribers",
-                               "--paced-by", pose_topic, "--topics", "/ouster/points"],
+                               "--paced-by", "/slow/pose", "--topics", "/ouster/points"],
                               capture_output=True, text=True, timeout=TIMEOUT_S)
-        time.sleep(1.0)  # the last clouds through the graph
+        out, err = graph.communicate(timeout=TIMEOUT_S)  # it ends once it has worked off what it got
     finally:
-        _, out, err = _stop(graph, signal.SIGINT)
-    assert play.returncode == 0, play.stderr
+        if graph.poll() is None:
+            graph.kill()
+    assert play.returncode == 0 and graph.returncode == 0, (play.stderr, err)
     clouds = sum(1 for _ in read_raw(DEMO_BAG, ["/ouster/points"], bag_span(DEMO_BAG)[0] + 10 * 10**9))
     received = int(out.split("received")[-1]) if "received" in out else 0
     held = float(play.stdout.split("clouds held ")[1].split(" s")[0])
-    if pose_topic == "/slow/pose":
-        assert received == clouds and held > 0.0, (received, clouds, play.stdout)
-    else:
+    if reports == "nothing":
         assert received < 0.8 * clouds and held == 0.0, (received, clouds, play.stdout)
+    else:
+        assert received == clouds and held > 0.0, (received, clouds, play.stdout)
+
+
+def _wait_until_played(player: subprocess.Popen, messages: int) -> None:
+    """Read the player's progress (its stderr, a line a second) until it says it has played ``messages``."""
+    deadline = time.monotonic() + TIMEOUT_S
+    for line in player.stderr:
+        if " messages" in line and int(line.split(" messages")[0].rsplit(" ", 1)[1]) >= messages:
+            return
+        assert time.monotonic() < deadline, f"the player did not play {messages} messages in {TIMEOUT_S} s"
+    raise AssertionError(f"the player ended before it played {messages} messages")
 
 
 def test_loop_plays_until_interrupted() -> None:
@@ -207,7 +235,7 @@ def test_loop_plays_until_interrupted() -> None:
                                "--topics", "/gt/root_pose"],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     per_pass = sum(1 for _ in read_raw(DEMO_BAG, ["/gt/root_pose"], bag_span(DEMO_BAG)[0] + 12 * 10**9))
-    time.sleep(5.0)  # start-up, then about 1 s per pass
+    _wait_until_played(player, per_pass + 1)  # into the second pass (about 1 s a pass)
     status, out, err = _stop(player, signal.SIGINT)
     assert status == 0, err
     passes = int(out.split(" pass(es)")[0].rsplit("(", 1)[1])
@@ -225,11 +253,12 @@ def test_loop_with_time_going_on_moves_the_stamps_and_the_clock_on(tmp_path: Pat
     player = subprocess.Popen([console_script("lip_bag_play"), str(DEMO_BAG), "--loop", "--time-goes-on", "--start",
                                "12", "--clock", "--wait-for-subscribers", "--topics", "/gt/root_pose"],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(6.0)  # start-up, then about 1 s per pass
-    assert _stop(player, signal.SIGINT)[0] == 0
-    assert _stop(recorder, signal.SIGINT)[0] == 0
     start = bag_span(DEMO_BAG)[0] + 12 * 10**9
     one = [m.msg for m in read_messages(DEMO_BAG, ["/gt/root_pose"]) if m.log_ns >= start]
+    _wait_until_played(player, 2 * len(one))  # two passes (about 1 s each)
+    time.sleep(0.5)  # their last messages to the recorder
+    assert _stop(player, signal.SIGINT)[0] == 0
+    assert _stop(recorder, signal.SIGINT)[0] == 0
     window = bag_span(DEMO_BAG)[1] - start + LOOP_GAP_NS
     played = [m.msg for m in read_messages(out, ["/gt/root_pose"])]
     assert len(played) >= 2 * len(one)
