@@ -15,10 +15,10 @@ plus :data:`LOOP_GAP_NS`, as one long capture would (a soak test).
 ``--paced-by`` plays no faster than the graph it feeds (a bag processed
 offline): each point cloud waits while the graph's latest pose on POSE_TOPIC
 (geometry_msgs/PoseStamped) is stamped before the cloud ``--ahead`` clouds
-before it, or while the graph's input of the cloud's topic has taken more than
-:data:`UNRECEIVED_S` of the clouds sent fewer than were sent (the ``received``
-count it reports on /diagnostics, as every lip_ros node does for its inputs:
-this paces a graph that poses nothing yet, calibrating or waiting for a jump);
+before it, or while the graph's input of the cloud's topic is more than
+:data:`UNRECEIVED_S` of clouds behind what was sent (by the ``received`` count
+it reports on /diagnostics, as every lip_ros node does for its inputs: this
+paces a graph that poses nothing yet, calibrating or waiting for a jump);
 the timing of everything after the wait moves on by the wait (/clock stands
 still meanwhile). A measure that has not moved on for :data:`PACING_STALL_S`
 holds nothing (a graph that poses nobody; clouds lost are not waited for
@@ -336,7 +336,7 @@ def parser() -> ArgumentParser:
     p.add_argument("--paced-by", metavar="POSE_TOPIC",
                    help="hold each point cloud while the graph's latest pose on this geometry_msgs/PoseStamped topic "
                         "is stamped before the cloud --ahead clouds before it, or while the graph's input of the "
-                        f"cloud's topic has taken more than {UNRECEIVED_S:g} s of clouds fewer than were sent (its "
+                        f"cloud's topic is more than {UNRECEIVED_S:g} s of clouds behind what was sent (by its "
                         f"received count on {DIAGNOSTICS_TOPIC}): no faster than the graph")
     p.add_argument("--ahead", type=int, default=DEFAULT_AHEAD, metavar="N",
                    help=f"with --paced-by: clouds the graph may have unposed (default {DEFAULT_AHEAD})")

@@ -330,8 +330,11 @@ def test_a_graph_killed_during_a_fault_resumes_with_what_it_saved(capture: Path,
     assert np.isfinite(np.array([p for _, p in after])).all()
     # started again, it poses the next frame it can: the first within 6 s of its nodes being ready (its start-up
     # takes seconds of the capture, more on a slower machine; 2.8 s after the kill here once: the DOT is silent until
-    # 2 s after it), and then all but the frames the later faults hit (measured 105 poses of the 180 frames left)
+    # 2 s after it), and then all but the frames the later faults hit (measured 105 poses of the 180 frames left
+    # after the kill; 42 with the suite on two workers, its start-up later, session 39): a third of those after it
+    # was ready at least
     assert len(ready) == 2, logs[-1][-3000:]  # the calibration and pose nodes
     up_at = max(killed_at, *ready)
     assert after and after[0][0] - up_at < 6 * 10**9, (len(after), after[0][0] - up_at if after else None)
-    assert len(after) >= 50, len(after)
+    frames_left = (bag_span(bag)[1] - up_at) / 1e8  # 10 Hz
+    assert len(after) >= frames_left / 3, (len(after), frames_left)
