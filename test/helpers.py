@@ -19,8 +19,9 @@ HSC4D_CAPTURE = {"seed": 5, "seconds": 20.0}
 #: LiDAR input has taken (before the jump no pose comes), at half speed: on a machine twice as slow as usual the
 #: graph lost 2-21 of 200 clouds at full speed (76-119 of 280 at 20 Hz) paced by poses alone; paced by both, none
 #: alone or beside a busy loop (session 39), but with the suite on two workers the capture played again lost its
-#: whole second pass ("suit data missing"; not understood yet: docs/reliability.md "Bags played paced"). What each
-#: sweep becomes is the tests' concern; how fast the graph is, the benchmarks' (bench_hsc4d_graph.py).
+#: whole second pass (the body node's "suit data missing"; not investigated: docs/reliability.md "Bags played
+#: paced"). What each sweep becomes is the tests' concern; how fast the graph is, the benchmarks'
+#: (bench_hsc4d_graph.py).
 HSC4D_PLAYBACK = ("--paced", "--rate", "0.5")
 
 
