@@ -50,7 +50,7 @@ demo-bag: $(INSTALLED)
 
 test: $(INSTALLED)
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest test -q -p no:cacheprovider -n $(TEST_WORKERS) --durations=15
+	$(PY) -m pytest test -q -p no:cacheprovider -n $(TEST_WORKERS) --durations=30
 
 bench: $(INSTALLED)
 	$(PY) benchmarks/bench_msgs.py

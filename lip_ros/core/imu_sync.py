@@ -21,8 +21,8 @@ A frame is ``OK`` when every sensor is, ``DEGRADED`` when some are only held,
 Online, :class:`ImuSynchronizer` keeps a bounded, sorted buffer per sensor
 (out-of-order samples are inserted in place; a repeated stamp keeps the first
 sample; invalid samples are rejected with a reason; a sensor whose stamps step
-back, :mod:`lip_ros.core.clock`, starts its buffer again from the second sample
-of the new time line). A node asks for ``t`` once
+back, :mod:`lip_ros.core.clock`, starts its buffer again from the first sample
+of the new time line, once the second confirms the step). A node asks for ``t`` once
 :meth:`ImuSynchronizer.ready` says so: every sensor has a sample at or after
 ``t + settle_ns``, or ``wait_ns`` passed since ``t``. The latency this implies
 is one IMU period (about 17 ms at 60 Hz) plus ``settle_ns`` plus the transport
@@ -383,7 +383,8 @@ class ImuSynchronizer:
         #: per sensor, how often its stamps stepped back (lip_ros.core.clock): its buffer was emptied each time
         self.clock_steps: dict[str, int] = dict.fromkeys(self.names, 0)
         self.last_clock_step_ns = 0  # how far back the latest step went
-        self._behind: dict[str, int | None] = dict.fromkeys(self.names)  # the last sample if far behind the newest
+        #: per sensor, the last sample (measurement time, row) if it was far behind the newest
+        self._behind: dict[str, tuple[int, np.ndarray] | None] = dict.fromkeys(self.names)
 
     def add(self, name: str, sample: ImuSampleLike) -> str | None:
         """Buffer one sample of sensor ``name``; returns why it was rejected, None if kept."""
@@ -478,21 +479,23 @@ class ImuSynchronizer:
         """Buffer one sample of sensor ``name`` validated by :meth:`validate` at its measurement time
         (:meth:`measured_ns`); why it was rejected, None if kept."""
         if code < 0:
-            self._check_step(name, self.measured_ns(name, stamp_ns))
+            self._check_step(name, self.measured_ns(name, stamp_ns), row)
         reason = _REJECTS[code] if code >= 0 else self._buffers[name].insert(self.measured_ns(name, stamp_ns), row)
         if reason is not None:
             self.rejected[name][reason] += 1
         return reason
 
-    def _check_step(self, name: str, measured_ns: int) -> None:
-        """Start the buffer of ``name`` again if its clock stepped back: this sample and the one before it both far
-        behind its newest (:func:`lip_ros.core.clock.stepped_back`), this one after that one. One such sample
-        alone is a late one (inserted in place, or rejected as older than the buffered data)."""
+    def _check_step(self, name: str, measured_ns: int, row: np.ndarray) -> None:
+        """Start the buffer of ``name`` again, from the sample before this one, if its clock stepped back: this
+        sample and the one before it both far behind its newest (:func:`lip_ros.core.clock.stepped_back`), this one
+        after that one. One such sample alone is a late one (inserted in place, or rejected as older than the
+        buffered data)."""
         step = stepped_back(measured_ns, self.newest_ns(name))
         before = self._behind[name]
-        self._behind[name] = measured_ns if step else None
-        if step and before is not None and 0 < measured_ns - before <= CLOCK_STEP_NS:
+        self._behind[name] = (measured_ns, row) if step else None
+        if step and before is not None and 0 < measured_ns - before[0] <= CLOCK_STEP_NS:
             self._buffers[name] = _Buffer(self.config.capacity)
+            self._buffers[name].insert(*before)  # the first sample of the new time line: this one goes in after it
             self._behind[name] = None
             self.clock_steps[name] += 1
             self.last_clock_step_ns = step

@@ -1,7 +1,7 @@
 """lip_bag_play: publish a rosbag2 bag's messages with their recorded timing and QoS (as ``ros2 bag play`` does).
 
   lip_bag_play BAG [--rate R] [--start S] [--loop [--time-goes-on]] [--clock [HZ]] [--topics T ...]
-               [--wait-for-subscribers] [--paced-by POSE_TOPIC [--ahead N]]
+               [--wait-for-subscribers] [--paced-by POSE_TOPIC [--ahead N] [--unreceived N]]
 
 Messages keep their log-time spacing (divided by ``--rate``) and are published
 as the CDR bytes stored in the bag, never deserialised; each topic gets the
@@ -16,9 +16,11 @@ plus :data:`LOOP_GAP_NS`, as one long capture would (a soak test).
 offline): each point cloud waits while the graph's latest pose on POSE_TOPIC
 (geometry_msgs/PoseStamped) is stamped before the cloud ``--ahead`` clouds
 before it, or while the graph's input of the cloud's topic is more than
-:data:`UNRECEIVED_S` of clouds behind what was sent (by the ``received`` count
-it reports on /diagnostics, as every lip_ros node does for its inputs: this
-paces a graph that poses nothing yet, calibrating or waiting for a jump);
+``--unreceived`` clouds (by default :data:`UNRECEIVED_S` of them) behind what
+was sent (by the ``received`` count it reports on /diagnostics, as every
+lip_ros node does for its inputs: this paces a graph that poses nothing yet,
+calibrating or waiting for a jump; fewer than its input queue holds, more
+than the clouds sent between two of its reports);
 the timing of everything after the wait moves on by the wait (/clock stands
 still meanwhile). A measure that has not moved on for :data:`PACING_STALL_S`
 holds nothing (a graph that poses nobody; clouds lost are not waited for
@@ -65,7 +67,8 @@ LOOP_GAP_NS = 100_000_000  # --time-goes-on: from the end of one pass to the sta
 DEFAULT_AHEAD = 3  # --paced-by: clouds the graph may have unposed (within a LiDAR input queue's depth of 5)
 PACING_STALL_S = 2.0  # --paced-by: a measure that has not moved on for this long (wall time) holds nothing
 #: --paced-by: the seconds of clouds (at the bag's rate) the graph's input may not have taken yet (HSC4D's cloud
-#: queue holds 2 s; the graph reports every 0.5 s under lip_process_bag, 1 s by default)
+#: queue holds 2 s, its nodes report every 0.5 s under lip_process_bag, 1 s by default; LIP's holds 5 clouds:
+#: lip_process_bag gives it --unreceived 4)
 UNRECEIVED_S = 1.0
 DIAGNOSTICS_TOPIC = "/diagnostics"
 PACED_TYPE = "sensor_msgs/msg/PointCloud2"  # the messages --paced-by holds
@@ -87,6 +90,7 @@ class PlayPlan:
     time_goes_on: bool = False  # with loop: each pass's time follows the last one's (header stamps and /clock)
     paced_by: str | None = None  # the graph's PoseStamped topic that paces the clouds (--paced-by)
     ahead: int = DEFAULT_AHEAD  # clouds the graph may have unposed with paced_by
+    unreceived: int | None = None  # clouds of a topic its input may not have taken with paced_by (None: UNRECEIVED_S)
 
 
 @dataclass
@@ -102,7 +106,8 @@ class PlayStats:
 
 def plan_playback(bag: Path, rate: float = 1.0, start_s: float = 0.0, topics: list[str] | None = None,
                   loop: bool = False, clock_hz: float | None = None, wait_for_subscribers: bool = False,
-                  time_goes_on: bool = False, paced_by: str | None = None, ahead: int = DEFAULT_AHEAD) -> PlayPlan:
+                  time_goes_on: bool = False, paced_by: str | None = None, ahead: int = DEFAULT_AHEAD,
+                  unreceived: int | None = None) -> PlayPlan:
     """Check the bag and options and resolve each topic's rclpy message class; ToolError on a problem."""
     if not rate > 0:
         raise ToolError(f"--rate must be > 0, got {rate}")
@@ -137,8 +142,10 @@ def plan_playback(bag: Path, rate: float = 1.0, start_s: float = 0.0, topics: li
         raise ToolError(f"--paced-by holds point clouds, and none of the played topics is a {PACED_TYPE}")
     if not ahead >= 1:
         raise ToolError(f"--ahead must be >= 1, got {ahead}")
+    if unreceived is not None and not unreceived >= 1:
+        raise ToolError(f"--unreceived must be >= 1, got {unreceived}")
     return PlayPlan(Path(bag), selected, classes, start_ns, last_ns, rate, loop, clock_hz, wait_for_subscribers,
-                    time_goes_on, paced_by, ahead)
+                    time_goes_on, paced_by, ahead, unreceived)
 
 
 class BagPlayer:
@@ -158,7 +165,8 @@ class BagPlayer:
         self.stats = PlayStats(per_topic=dict.fromkeys(plan.topics, 0))
         self.paced = {t for t, i in plan.topics.items() if i.msgtype == PACED_TYPE} if plan.paced_by else set()
         span_s = max(plan.end_ns - bag_span(plan.bag)[0], 1) / NS_PER_S
-        unreceived = {t: max(1, round(UNRECEIVED_S * plan.topics[t].count / span_s)) for t in self.paced}
+        unreceived = {t: plan.unreceived or max(1, round(UNRECEIVED_S * plan.topics[t].count / span_s))
+                      for t in self.paced}
         self.pacer = None if plan.paced_by is None else Pacer(node, plan.paced_by, plan.ahead, unreceived, stop)
 
     def run(self) -> PlayStats:
@@ -340,13 +348,16 @@ def parser() -> ArgumentParser:
                         f"received count on {DIAGNOSTICS_TOPIC}): no faster than the graph")
     p.add_argument("--ahead", type=int, default=DEFAULT_AHEAD, metavar="N",
                    help=f"with --paced-by: clouds the graph may have unposed (default {DEFAULT_AHEAD})")
+    p.add_argument("--unreceived", type=int, metavar="N",
+                   help=f"with --paced-by: clouds of a topic the graph's input may not have taken yet (default "
+                        f"{UNRECEIVED_S:g} s of them at the bag's rate; fewer than the input's queue holds)")
     return p
 
 
 def _play(argv: list[str]) -> int:
     args = parser().parse_args(tool_args(argv))
     plan = plan_playback(args.bag, args.rate, args.start, args.topics, args.loop, args.clock,
-                         args.wait_for_subscribers, args.time_goes_on, args.paced_by, args.ahead)
+                         args.wait_for_subscribers, args.time_goes_on, args.paced_by, args.ahead, args.unreceived)
     stop = stop_on_signals()
     start_ros(argv)
     node = rclpy.create_node("lip_bag_play")

@@ -164,6 +164,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 reports = sys.argv[1]  # "poses", "counts" (on /diagnostics, as every lip_ros node does for its inputs) or "nothing"
+depth, period = int(sys.argv[2]), float(sys.argv[3])  # of its cloud queue; of its reports (s)
 rclpy.init()
 node = rclpy.create_node("slow_graph")
 pose = node.create_publisher(PoseStamped, "/slow/pose", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
@@ -182,9 +183,7 @@ def report():
                               values=[KeyValue(key="received", value=str(got[0]))])
     diagnostics.publish(DiagnosticArray(status=[status]))
 if reports == "counts":
-    node.create_timer(0.5, report)
-# best effort, depth 5 as LIP's segmentation node; 20 (2 s) as HSC4D's trajectory node where only counts pace
-depth = 20 if reports == "counts" else 5
+    node.create_timer(period, report)
 node.create_subscription(PointCloud2, "/ouster/points", take, QoSProfile(depth=depth,
                          reliability=qos_profile_sensor_data.reliability))
 print("ready", flush=True)
@@ -194,17 +193,24 @@ print("received", got[0], flush=True)
 """
 
 
-@pytest.mark.parametrize("reports", ["poses", "counts", "nothing"])
-def test_paced_by_the_graph_every_cloud_reaches_a_slow_graph(reports: str) -> None:
-    """``--paced-by``: a graph 2.5x slower than the LiDAR gets every cloud, the player waiting for its poses (a
-    best-effort queue of 5), or, where it poses nothing, for the ``received`` count of its input on /diagnostics (a
-    queue of 2 s); a graph that reports neither gets the clouds in real time and loses some (the test can tell)."""
-    graph = subprocess.Popen([sys.executable, "-c", SLOW_GRAPH, reports], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+@pytest.mark.parametrize(("reports", "depth", "period_s", "args"), [
+    ("poses", 5, 0.5, []),  # a best-effort queue of 5, as LIP's segmentation node
+    ("counts", 20, 0.5, []),  # 2 s, as HSC4D's trajectory node, reported every 0.5 s (lip_process_bag)
+    ("counts", 5, 0.25, ["--unreceived", "4"]),  # LIP's queue, reported as lip_process_bag has it
+    ("nothing", 5, 0.5, []),
+], ids=["poses", "counts", "counts into a queue of 5", "nothing"])
+def test_paced_by_the_graph_every_cloud_reaches_a_slow_graph(reports: str, depth: int, period_s: float,
+                                                             args: list[str]) -> None:
+    """``--paced-by``: a graph 2.5x slower than the LiDAR gets every cloud, the player waiting for its poses, or,
+    where it poses nothing, for the ``received`` count of its input on /diagnostics (into a queue of 5, fewer clouds
+    not taken than it holds: with the default 1 s of them, 10, it lost 5 of 30); a graph that reports neither gets
+    the clouds in real time and loses some (the test can tell)."""
+    graph = subprocess.Popen([sys.executable, "-c", SLOW_GRAPH, reports, str(depth), str(period_s)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert graph.stdout.readline().strip() == "ready"
         play = subprocess.run([console_script("lip_bag_play"), str(DEMO_BAG), "--start", "10", "--wait-for-subscribers",
-                               "--paced-by", "/slow/pose", "--topics", "/ouster/points"],
+                               "--paced-by", "/slow/pose", *args, "--topics", "/ouster/points"],
                               capture_output=True, text=True, timeout=TIMEOUT_S)
         out, err = graph.communicate(timeout=TIMEOUT_S)  # it ends once it has worked off what it got
     finally:

@@ -395,6 +395,7 @@ class BodyNode(GraphNode):
             raw.clear()
 
     def _on_odometry(self, msg: Odometry) -> int:
+        self.take_waiting("suit odometry")  # polled: a new capture it shows is seen before this pose is placed
         odometry = msg_to_odometry(msg)
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat), odometry.position
