@@ -45,7 +45,7 @@ def runs(hsc4d_run) -> dict[str, tuple[Path, Path, subprocess.CompletedProcess]]
     process)."""
     capture = hsc4d_run[0]
     out = {"clean": hsc4d_run}
-    for name, faults in FAULTS.items():  # at half speed, paced: 1-2 min each on a slow machine
+    for name, faults in FAULTS.items():  # paced: about a minute each, twice that on a slow machine
         if not faults:
             continue
         bag = capture.with_name(name)

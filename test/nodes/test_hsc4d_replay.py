@@ -1,6 +1,6 @@
 """A short HSC4D capture through the live graph over real DDS: player, fusion_node (HSC4D branch: the trajectory
 node and the body node in two processes) and recorder, run by ``lip_process_bag`` as ``HSC4D_PLAYBACK`` says
-(paced, half speed: what becomes of each sweep; whether the graph keeps up with the sensors in real time:
+(paced: what becomes of each sweep; whether the graph keeps up with the sensors in real time:
 benchmarks/bench_hsc4d_graph.py)."""
 
 from __future__ import annotations
