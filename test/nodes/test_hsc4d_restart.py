@@ -33,7 +33,6 @@ from lip_ros.tools.process_bag import HSC4D
 pytestmark = pytest.mark.ros  # DDS traffic and subprocesses
 
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-RATE = 0.5  # playback speed
 
 
 def _start(*args: str) -> subprocess.Popen:
@@ -68,7 +67,7 @@ def test_a_restarted_hsc4d_graph_goes_on_without_another_jump(ros_node, tmp_path
     ros_node.create_subscription(Clock, "/clock", lambda m: clock.__setitem__(0, stamp_to_ns(m.clock)), CLOCK_QOS)
 
     def play(start_s: float) -> subprocess.Popen:
-        return subprocess.Popen([console_script("lip_bag_play"), str(bag), "--clock", "--rate", str(RATE),
+        return subprocess.Popen([console_script("lip_bag_play"), str(bag), "--clock", "--paced-by", HSC4D.pose_topic,
                                  "--start", f"{start_s:.3f}", "--wait-for-subscribers", "--topics", *HSC4D.inputs],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
