@@ -331,6 +331,8 @@ BAD_CALLS = {
     "zero rate": (["lip_bag_play", str(DEMO_BAG), "--rate", "0"], "--rate must be > 0"),
     "unknown topic": (["lip_bag_play", str(DEMO_BAG), "--topics", "/nope"], "/nope not in"),
     "start past end": (["lip_bag_play", str(DEMO_BAG), "--start", "99"], "past the end"),
+    "none unreceived": (["lip_bag_play", str(DEMO_BAG), "--paced-by", "/p", "--unreceived", "0"],
+                        "--unreceived must be >= 1"),
     "bad number": (["lip_bag_play", str(DEMO_BAG), "--rate", "fast"], "invalid float value"),
     "unknown type": (["lip_bag_play", "UNKNOWN_TYPE_BAG"], "unknown message type lip_fake_msgs/msg/Thing"),
     "no topics": (["lip_bag_record", "/tmp/never"], "the following arguments are required: --topics"),
