@@ -446,7 +446,10 @@ def _run(argv: list[str]) -> int:
         raise ToolError(f"--rate must be > 0, got {args.rate}")
     node_args = [*branch.node_args, "-p", "use_sim_time:=true"]
     calibration = args.outputs.with_name(args.outputs.name + "_calibration.yaml")
+    lidar_hz = rate_of_bag(args.inputs, branch.lidar)
+    node_args += ["-p", f"lidar_rate_hz:={lidar_hz:.1f}"]
     if branch is LIP:
+        print(f"LiDAR: {lidar_hz:.1f} Hz in the bag (the graph's lidar_rate_hz)", flush=True)
         _start_calibration(calibration, args.calibration)
         node_args += ["-p", f"calibration_file:={calibration}"]
         if args.rate > 1.0:  # throughput before latency: the stages overlap on their own threads
@@ -454,10 +457,10 @@ def _run(argv: list[str]) -> int:
     else:
         if args.calibration is not None:
             raise ToolError("--calibration is for LIP bags; the HSC4D graph finds its extrinsics from the data")
-        suit_hz, lidar_hz = suit_rate_of_bag(args.inputs), rate_of_bag(args.inputs, branch.lidar)
+        suit_hz = suit_rate_of_bag(args.inputs)
         print(f"suit: {suit_hz:.1f} Hz in the bag (the graph's suit_rate_hz); LiDAR: {lidar_hz:.1f} Hz "
               f"(its lidar_rate_hz)", flush=True)
-        node_args += ["-p", f"suit_rate_hz:={suit_hz:.1f}", "-p", f"lidar_rate_hz:={lidar_hz:.1f}"]
+        node_args += ["-p", f"suit_rate_hz:={suit_hz:.1f}"]
     refined = args.outputs.with_name(args.outputs.name + "_refined") if args.refine else None
     if args.refine and branch is LIP:
         raise ToolError("--refine is for HSC4D bags (the offline refinement of the HSC4D branch)")

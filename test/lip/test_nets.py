@@ -127,6 +127,30 @@ def test_streaming_equals_batch():
     np.testing.assert_allclose(again.joints, whole.joints[0], atol=1e-5)
 
 
+def test_a_lidar_twice_as_fast_as_the_training_is_fed_as_two_interleaved_sequences():
+    """At 20 Hz (weights trained at 10), frame k continues frame k - 2's sequence: the rotations of the even and
+    of the odd frames are those of the 10 Hz model on each alone (the body scale, from every frame, is shared);
+    streamed in any chunks as run whole; a rate that is no multiple rounds to the nearest (at least one)."""
+    torch.manual_seed(3)
+    net = LipNet(LipConfig.tiny())
+    fast, plain = LipModel(net, surface_fit=None, lidar_rate_hz=20.0), LipModel(net, surface_fit=None)
+    assert fast.interleave == 2 and plain.interleave == 1
+    assert LipModel(net, lidar_rate_hz=14.0).interleave == 1 and LipModel(net, lidar_rate_hz=5.0).interleave == 1
+    frames = _random_frames(np.random.default_rng(5), 11, empty=(4,))
+    whole = _run(fast, frames)
+    for parity in (0, 1):
+        alone = _run(plain, frames[parity::2])
+        np.testing.assert_allclose(whole.local_rot[parity::2], alone.local_rot, atol=1e-5)
+    assert not np.allclose(whole.local_rot, _run(plain, frames).local_rot, atol=1e-3)  # one sequence differs
+    chunks = [fast.stream(*(list(x) for x in zip(*frames[a:b], strict=True))) for a, b in ((0, 3), (3, 4), (4, 11))]
+    np.testing.assert_allclose(np.concatenate([c.local_rot for c in chunks]), whole.local_rot, atol=1e-5)
+    np.testing.assert_allclose(np.concatenate([c.joints for c in chunks]), whole.joints, atol=1e-5)
+    fast.reset()
+    np.testing.assert_allclose(fast.step(*frames[0]).local_rot, whole.local_rot[0], atol=1e-5)
+    with pytest.raises(ValueError, match="lidar_rate_hz"):
+        LipModel(net, lidar_rate_hz=0.0)
+
+
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_ablation_variants_stream_and_drop_what_they_ablate(variant):
     torch.manual_seed(3)

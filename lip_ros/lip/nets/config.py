@@ -32,6 +32,9 @@ class LipConfig:
     1, 1, 0.2, 0.7, 0.7 with the two prior weights cut to 0.1 (measured,
     docs/lip/training.md "Loss weights").
     ``variant`` is the method (``full``) or one of its ablations (:data:`VARIANTS`).
+    ``rate_hz`` is the LiDAR rate of the sequences it was trained on (the rig's 10 Hz; weights saved before
+    it was recorded load with that): a faster LiDAR is fed to it as interleaved sequences at this rate
+    (:class:`lip_ros.lip.nets.lip_model.LipModel`).
     """
 
     num_points: int = 256
@@ -45,8 +48,11 @@ class LipConfig:
     bidirectional: bool = False
     lambdas: tuple[float, float, float, float, float] = (0.1, 0.1, 0.2, 0.7, 0.7)
     variant: str = "full"
+    rate_hz: float = 10.0
 
     def __post_init__(self) -> None:
+        if not self.rate_hz > 0:
+            raise ValueError(f"LipConfig rate_hz must be > 0, got {self.rate_hz}")
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown LipConfig variant {self.variant!r}; one of {', '.join(VARIANTS)}")
 

@@ -102,9 +102,14 @@ class PoseNode(GraphNode):
         set_threads(p["torch_threads"])
         try:
             model = LipModel.load(Path(p["weights"]).expanduser() if p["weights"] else None,
-                                  surface_fit=SURFACE_FIT if p["surface_fit"] else None)
+                                  surface_fit=SURFACE_FIT if p["surface_fit"] else None,
+                                  lidar_rate_hz=p["lidar_rate_hz"])
         except (OSError, ValueError, KeyError, RuntimeError) as exc:
             raise ParameterError(f"cannot load weights {p['weights'] or '(shipped)'}: {exc}") from exc
+        if model.interleave > 1:
+            self.get_logger().info(f"the network learned motion at {model.config.rate_hz:g} Hz: the "
+                                   f"{p['lidar_rate_hz']:g} Hz frames are fed to it as {model.interleave} "
+                                   "interleaved sequences")
         self.stage = PoseStage(model, max_gap_ns=int(p["max_pose_gap_s"] * 1e9))
         self._arrivals = arrivals
         self._latency = LatencyWindow()  # last input of a frame -> its outputs published
