@@ -6,7 +6,7 @@ import json
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
-__all__ = ["VARIANTS", "LipConfig"]
+__all__ = ["VARIANTS", "LipConfig", "TRAINING_RATE_HZ"]
 
 #: The method and the paper's ablations (its tables 3, 6 and 7), each trained on its own:
 #: ``full`` the method; ``lidar_only`` / ``imu_only`` the same networks with the other modality's input
@@ -15,6 +15,10 @@ __all__ = ["VARIANTS", "LipConfig"]
 #: body-pose estimator works on the prior and the IMUs, no refined joint map; ``trans_no_pose`` ("w/o PG")
 #: the translation corrector sees its point features only.
 VARIANTS = ("full", "lidar_only", "imu_only", "no_prior", "no_joint_map", "trans_no_pose")
+
+
+#: The LiDAR rate of the training sequences (``lip_ros.lip.train.rigdata``), which ``LipConfig.rate_hz`` records.
+TRAINING_RATE_HZ = 10.0
 
 
 @dataclass(frozen=True)
@@ -48,7 +52,7 @@ class LipConfig:
     bidirectional: bool = False
     lambdas: tuple[float, float, float, float, float] = (0.1, 0.1, 0.2, 0.7, 0.7)
     variant: str = "full"
-    rate_hz: float = 10.0
+    rate_hz: float = TRAINING_RATE_HZ
 
     def __post_init__(self) -> None:
         if not self.rate_hz > 0:

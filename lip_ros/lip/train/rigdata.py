@@ -46,6 +46,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from lip_ros.core.body import BodyModel
 from lip_ros.core.rotations import axis_angle_to_matrix, rot_x, rot_y, rot_z
 from lip_ros.core.skeleton import load_skeleton
+from lip_ros.lip.nets.config import TRAINING_RATE_HZ
 from lip_ros.lip.sensors import IMU_NAMES
 from lip_ros.rig.domain import DOMAINS, TRAINING
 from lip_ros.rig.imu import GRAVITY, ImuRigConfig, ImuStream, make_imu_truth, simulate_imus
@@ -197,7 +198,7 @@ def make_sequence(spec: SequenceSpec) -> RigSequence:
     body = BodyModel(motion.skeleton, girth=float(rng.uniform(0.9, 1.15)), torso_girth=draw.torso_girth,
                      limb_girth=draw.limb_girth)
     R_S_L = rot_y(np.radians(spec.lidar_pitch_deg)) @ rot_x(np.radians(spec.lidar_roll_deg))  # L in the level world
-    lidar = OusterModel.os1_128(rotation=R_S_L)
+    lidar = OusterModel.os1_128(rate_hz=TRAINING_RATE_HZ, rotation=R_S_L)
     actors = [Actor(body, motion)]
     num_frames = int(np.floor(motion.duration * lidar.rate_hz + 1e-9))
     clouds, pose_time = [], np.empty(num_frames)
