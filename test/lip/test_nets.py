@@ -147,6 +147,7 @@ def test_a_lidar_twice_as_fast_as_the_training_is_fed_as_two_interleaved_sequenc
     np.testing.assert_allclose(np.concatenate([c.joints for c in chunks]), whole.joints, atol=1e-5)
     fast.reset()
     np.testing.assert_allclose(fast.step(*frames[0]).local_rot, whole.local_rot[0], atol=1e-5)
+    assert plain.for_rate(20.0).interleave == 2 and plain.for_rate(20.0).net is net
     with pytest.raises(ValueError, match="lidar_rate_hz"):
         LipModel(net, lidar_rate_hz=0.0)
 

@@ -190,7 +190,7 @@ def evaluate_capture(capture: CaptureTruth, model: LipModel, mode: str,
     gt_stamps = capture.gt_stamp_ns
     tolerance_ns = int(0.5e9 / capture.rate_hz)
     posed, frames, gt, diffs = [], [], [], []
-    for result in process_bag_batch(_pipeline(capture, model, mode), capture.bag):
+    for result in process_bag_batch(_pipeline(capture, model.for_rate(capture.rate_hz), mode), capture.bag):
         ev.frames += 1
         k = capture.frame_index(result.frame_stamp_ns)
         if k is None:

@@ -211,6 +211,10 @@ class LipModel:
         net.load_state_dict(torch.load(path.with_suffix(".pt"), map_location="cpu", weights_only=True))
         return cls(net, bone_tolerance_deg, surface_fit, lidar_rate_hz)
 
+    def for_rate(self, lidar_rate_hz: float) -> LipModel:
+        """The same network and settings for a LiDAR at ``lidar_rate_hz``, with a streaming state of its own."""
+        return LipModel(self.net, self.bone_tolerance_deg, self.surface_fit, lidar_rate_hz)
+
     def _preprocessors(self) -> list[Preprocessor]:
         return [Preprocessor(self.config.num_points) for _ in range(self.interleave)]
 
