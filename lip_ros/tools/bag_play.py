@@ -81,6 +81,7 @@ class PlayPlan:
     bag: Path
     topics: dict[str, TopicInfo]
     classes: dict[str, type]
+    first_ns: int  # the bag's first message's log time (its topics' rates are over first_ns..end_ns)
     start_ns: int
     end_ns: int
     rate: float = 1.0
@@ -144,8 +145,8 @@ def plan_playback(bag: Path, rate: float = 1.0, start_s: float = 0.0, topics: li
         raise ToolError(f"--ahead must be >= 1, got {ahead}")
     if unreceived is not None and not unreceived >= 1:
         raise ToolError(f"--unreceived must be >= 1, got {unreceived}")
-    return PlayPlan(Path(bag), selected, classes, start_ns, last_ns, rate, loop, clock_hz, wait_for_subscribers,
-                    time_goes_on, paced_by, ahead, unreceived)
+    return PlayPlan(Path(bag), selected, classes, first_ns, start_ns, last_ns, rate, loop, clock_hz,
+                    wait_for_subscribers, time_goes_on, paced_by, ahead, unreceived)
 
 
 class BagPlayer:
@@ -164,7 +165,7 @@ class BagPlayer:
                         if next(iter(c.get_fields_and_field_types().items()), None) == ("header", "std_msgs/Header")}
         self.stats = PlayStats(per_topic=dict.fromkeys(plan.topics, 0))
         self.paced = {t for t, i in plan.topics.items() if i.msgtype == PACED_TYPE} if plan.paced_by else set()
-        span_s = max(plan.end_ns - bag_span(plan.bag)[0], 1) / NS_PER_S
+        span_s = max(plan.end_ns - plan.first_ns, 1) / NS_PER_S
         unreceived = {t: plan.unreceived or max(1, round(UNRECEIVED_S * plan.topics[t].count / span_s))
                       for t in self.paced}
         self.pacer = None if plan.paced_by is None else Pacer(node, plan.paced_by, plan.ahead, unreceived, stop)
