@@ -5,7 +5,11 @@ the rate) or rejected with a reason. The node turns :meth:`SensorMonitor.report`
 into ``/diagnostics``. A clock step of the sensor is a stamp more than
 :data:`lip_ros.core.clock.CLOCK_STEP_NS` behind the newest, or that ran that
 much further than the receive clock since the last message; it is reported
-(WARN) for ``window_s`` after.
+(WARN) for ``window_s`` after. A sensor stamping each period
+(``count_missing``) has its period measured from the stamps
+(:class:`lip_ros.core.frame_period.FramePeriod`): the missing messages are
+counted in it, and one far from the expected rate is reported (WARN: a LiDAR
+at 20 Hz where 10 was configured).
 """
 
 from __future__ import annotations
@@ -18,12 +22,15 @@ import numpy as np
 
 from lip_msgs_py.diagnostics import DiagnosticLevel
 from lip_ros.core.clock import CLOCK_STEP_NS, stepped_back
+from lip_ros.core.frame_period import FramePeriod
 
 __all__ = ["SensorReport", "SensorMonitor", "odd_delays"]
 
 #: how many of the latest messages the delay is the median of (a tenth of a second of 60 Hz IMU data, a second of
 #: 10 Hz LiDAR frames)
 _DELAY_MESSAGES = 9
+#: a period measured from the stamps is reported when its rate is farther than this factor from the expected one
+_RATE_FACTOR = 1.25
 
 
 @dataclass(frozen=True)
@@ -66,6 +73,7 @@ class SensorMonitor:
     _recent_rejects: deque[tuple[float, str]] = field(default_factory=deque, repr=False)
     _recent_steps: deque[tuple[float, int]] = field(default_factory=deque, repr=False)  # (receive time, signed step)
     _recent_missing: deque[tuple[float, int]] = field(default_factory=deque, repr=False)  # (receive time, missing)
+    _period: FramePeriod = field(default_factory=FramePeriod, repr=False)  # of the accepted stamps (count_missing)
     _missing: int = 0
     _received: int = 0
     _accepted: int = 0
@@ -86,7 +94,7 @@ class SensorMonitor:
             self._clock_steps += 1
             self._recent_steps.append((now_s, step))
         elif self.count_missing and self._last_stamp_ns is not None and stamp_ns > self._last_stamp_ns:
-            missing = round((stamp_ns - self._last_stamp_ns) * 1e-9 * self.expected_rate_hz) - 1
+            missing = round((stamp_ns - self._last_stamp_ns) * 1e-9 * self.measured_rate_hz) - 1
             if missing > 0:
                 self._missing += missing
                 self._recent_missing.append((now_s, missing))
@@ -94,6 +102,8 @@ class SensorMonitor:
             self._out_of_order += 1
         else:
             self._last_stamp_ns = stamp_ns
+            if self.count_missing:
+                self._period.add(stamp_ns)
         self._trim(now_s)
         self._arrivals.append(now_s)
         self._delays.append(now_s - stamp_ns * 1e-9)
@@ -130,6 +140,12 @@ class SensorMonitor:
         self._trim(now_s)
         return len(self._arrivals) / self.window_s
 
+    @property
+    def measured_rate_hz(self) -> float:
+        """The rate of the stamps (a sensor stamping each period, ``count_missing``), the expected rate until it
+        is known or without ``count_missing``."""
+        return self._period.rate_hz or self.expected_rate_hz
+
     def delay_s(self) -> float | None:
         """Median of receive time less stamp over the latest messages (None without any): transport and driver
         delay, plus any offset between the sensor's clock and the receive clock."""
@@ -144,6 +160,10 @@ class SensorMonitor:
         problems = []
         if rate < 0.5 * self.expected_rate_hz:
             problems.append(f"rate {rate:.1f} Hz, expected {self.expected_rate_hz:.1f} Hz")
+        stamped = self.measured_rate_hz
+        if not 1.0 / _RATE_FACTOR <= stamped / self.expected_rate_hz <= _RATE_FACTOR:
+            problems.append(f"stamped {1e3 / stamped:.0f} ms apart ({stamped:.1f} Hz), expected "
+                            f"{self.expected_rate_hz:.1f} Hz")
         recent = Counter(reason for _, reason in self._recent_rejects)
         if recent:
             problems.append(f"rejected in the last {self.window_s:g} s: "

@@ -37,6 +37,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from lip_ros.core.clock import stepped_back
+from lip_ros.core.frame_period import FramePeriod
 from lip_ros.core.imu_sync import FrameStatus, ImuSampleLike, ImuSynchronizer, SensorStatus, SyncConfig, SyncResult
 from lip_ros.core.rotations import matrix_to_quat, rot_z
 from lip_ros.core.skeleton import Skeleton, forward_kinematics, load_skeleton
@@ -511,7 +512,11 @@ class PoseStage:
     After more than ``max_gap_ns`` without a pose (a calibration reset, the
     performer lost, IMUs missing), or when the stamps go back (a clock step),
     the network starts a new sequence: its recurrent state would describe a body
-    long gone.
+    long gone. The frames' period is measured from their stamps
+    (:class:`lip_ros.core.frame_period.FramePeriod`): where it calls for another
+    interleave than the model's (:meth:`LipModel.interleave_for`: a LiDAR at 20
+    Hz given a model set for 10, or the reverse), the model is set for the
+    measured rate (:meth:`LipModel.for_rate`) and a new sequence starts.
     """
 
     def __init__(self, model: LipModel, skeleton: Skeleton | None = None, max_gap_ns: int = MAX_POSE_GAP_NS) -> None:
@@ -520,6 +525,7 @@ class PoseStage:
         self.max_gap_ns = max_gap_ns
         self.level: np.ndarray | None = None  # R_L_P (3, 3), the level frame in L (None: L is level)
         self.sequences = 0  # sequences started (the first pose, then after each gap)
+        self.period = FramePeriod()  # of the frames posed
         self._last_ns: int | None = None
         self.model.reset()
 
@@ -539,17 +545,25 @@ class PoseStage:
             return []
         start = time.perf_counter()
         new = set()  # frames that start a new sequence
-        last = self._last_ns
+        rates = {}  # frame -> the measured rate the model is set for from that frame on
+        last, interleave = self._last_ns, self.model.interleave
         for k, stamp_ns in enumerate(stamps_ns):
             if last is None or not 0 < stamp_ns - last <= self.max_gap_ns:  # a gap, or the clock stepped back
                 new.add(k)
             last = stamp_ns
+            self.period.add(stamp_ns)
+            rate = self.period.rate_hz
+            if rate is not None and self.model.interleave_for(rate) != interleave:
+                rates[k], interleave = rate, self.model.interleave_for(rate)
+                new.add(k)
         level = self.level
         if level is not None:  # into P, where the network works
             points = [(p @ level).astype(p.dtype) for p in points]
             bone_rot, free_acc = level.T @ bone_rot, free_acc @ level
         outs = []
         for a, b in itertools.pairwise(sorted({0, *new, len(stamps_ns)})):
+            if a in rates:
+                self.model = self.model.for_rate(rates[a])
             if a in new:
                 self.model.reset()
                 self.sequences += 1

@@ -86,3 +86,22 @@ def test_the_receive_clock_going_back_starts_the_rate_window_again() -> None:
     t = feed(m, 10.0, 12.0, 60.0, stamp0=10**12)  # new stamps go on forward: no stamp step
     r = m.report(t)
     assert r.rate_hz == pytest.approx(60.0, abs=1.0) and r.health == DiagnosticLevel.OK and r.age_s < 0.1
+
+
+@pytest.mark.parametrize(("expected_hz", "stamped_hz", "warns"), [(10.0, 20.0, True), (20.0, 10.0, True),
+                                                                  (10.0, 10.0, False), (10.0, 11.0, False)])
+def test_a_sensor_stamping_each_period_is_warned_of_a_rate_unlike_the_expected_one(expected_hz, stamped_hz, warns):
+    """An OS1 in a 20 Hz mode where 10 was configured (or the reverse): the rate measured from the stamps is
+    reported, and the messages missing from a gap are counted in it (three of a 20 Hz sensor's, not one). Until
+    five intervals are known they are counted in the expected period (a 10 Hz sensor expected at 20: one each)."""
+    m = SensorMonitor("lidar", expected_hz, count_missing=True)
+    period_ns = round(1e9 / stamped_hz)
+    stamps = [k * period_ns for k in range(60) if not 10 <= k < 13]  # three missing
+    for stamp in stamps:
+        m.accept(stamp * 1e-9 + 0.01, stamp)
+    r = m.report(stamps[-1] * 1e-9 + 0.02)  # the gap more than window_s before
+    assert ("stamped" in r.message) == warns and r.health == (DiagnosticLevel.WARN if warns else DiagnosticLevel.OK)
+    if warns:
+        assert f"({stamped_hz:.1f} Hz), expected {expected_hz:.1f} Hz" in r.message
+    before_known = 5 if stamped_hz < expected_hz / 1.5 else 0
+    assert r.missing == 3 + before_known and m.measured_rate_hz == pytest.approx(stamped_hz)

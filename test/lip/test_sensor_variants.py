@@ -58,8 +58,8 @@ MAX_RATIO_FITTED = 1.6
 
 
 @functools.cache
-def _model(surface_fit: bool, lidar_rate_hz: float) -> LipModel:
-    return LipModel.load(surface_fit=SURFACE_FIT if surface_fit else None, lidar_rate_hz=lidar_rate_hz)
+def _model(surface_fit: bool) -> LipModel:
+    return LipModel.load(surface_fit=SURFACE_FIT if surface_fit else None)
 
 
 @functools.cache
@@ -76,7 +76,7 @@ def errors(changes: tuple[tuple[str, float], ...], out: Path, dot_latency: bool 
     capture = load_capture(bag)
     latency = tuple(round(s.latency_s * 1e9) for s in session.imu_truth.specs) if dot_latency else ()
     config = PipelineConfig(sync=SyncConfig(latency_ns=latency), latency=LatencyConfig(enabled=estimate))
-    model = _model(surface_fit, session.config.rate_hz)  # the LiDAR's rate, as lip_process_bag gives the graph
+    model = _model(surface_fit)  # set for the training's rate: the pose stage measures the LiDAR's from the stamps
     results = list(process_bag_batch(LipPipeline(model, config, pose_batch=64), bag))
     posed = [r for r in results if r.pose is not None and r.pose.stamp_ns >= capture.motion_start_ns]
     gt = np.array([np.abs(capture.gt_stamp_ns - r.pose.stamp_ns).argmin() for r in posed])

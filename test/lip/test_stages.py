@@ -110,6 +110,33 @@ def test_pose_stage_starts_a_new_sequence_after_a_gap():
     assert not np.allclose(outs[1].local_rot, outs[0].local_rot, atol=1e-6)
 
 
+@pytest.mark.parametrize(("configured_hz", "frames_hz", "interleave"), [(10.0, 20.0, 2), (20.0, 10.0, 1),
+                                                                       (10.0, 10.0, 1)])
+def test_pose_stage_feeds_the_network_at_the_rate_the_stamps_show(configured_hz, frames_hz, interleave):
+    """A LiDAR at another rate than the model was set for (``lidar_rate_hz``; an OS1 in a 20 Hz mode): once five
+    intervals are known the model is set for the measured rate and a new sequence starts, the same frame by frame
+    as in one batch; a frame dropped now and then does not move the rate."""
+    net = LipNet(LipConfig.tiny())
+    period_ns = round(1e9 / frames_hz)
+    stamps = [k * period_ns for k in range(12) if k != 7]  # one frame dropped
+    rng = np.random.default_rng(0)
+    rot = np.broadcast_to(np.eye(3), (len(stamps), 4, 3, 3)).copy()
+    pts = [rng.normal([5.0, 0.0, 0.0], 0.2, (200, 3)).astype(np.float32) for _ in stamps]
+    stage = PoseStage(LipModel(net, surface_fit=None, lidar_rate_hz=configured_hz))
+    one_by_one = [stage.estimate(t, p, r, np.zeros((4, 3)))[0] for t, p, r in zip(stamps, pts, rot, strict=True)]
+    assert stage.model.interleave == interleave and stage.period.rate_hz == pytest.approx(frames_hz)
+    switched = interleave != LipModel(net, lidar_rate_hz=configured_hz).interleave
+    assert stage.sequences == 1 + switched  # the switch at the sixth frame (five intervals)
+    batch = PoseStage(LipModel(net, surface_fit=None, lidar_rate_hz=configured_hz))
+    together = batch.estimate_sequence(stamps, pts, rot, np.zeros((len(stamps), 4, 3)))
+    assert batch.sequences == stage.sequences and batch.model.interleave == interleave
+    np.testing.assert_allclose([o.local_rot for o, _, _ in together], [o.local_rot for o in one_by_one], atol=1e-5)
+    if switched:  # the sixth frame starts afresh, as a model set for the measured rate would
+        fresh = PoseStage(LipModel(net, surface_fit=None, lidar_rate_hz=frames_hz))
+        np.testing.assert_allclose(fresh.estimate(stamps[5], pts[5], rot[5], np.zeros((4, 3)))[0].local_rot,
+                                   one_by_one[5].local_rot, atol=1e-5)
+
+
 def test_without_the_calibration_poses_every_buffer_stays_bounded():
     """Three minutes of the four DOTs and no performer frame (no calibration poses): the samples kept for the
     calibration stay within the detector's horizon, and the state says what it waits for."""

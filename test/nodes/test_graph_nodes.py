@@ -39,6 +39,7 @@ from lip_ros.lip.batch import replay_bag
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.pipeline import LipPipeline, PipelineConfig
 from lip_ros.lip.sensors import IMU_NAMES
+from lip_ros.nodes.base import BETWEEN_NODES
 from lip_ros.nodes.lip.calibration import DOT_LATENCY_VALUE
 from lip_ros.resources import params_path
 from lip_ros.tools.bag_play import CLOCK_QOS
@@ -272,6 +273,46 @@ def test_a_lidar_on_another_clock_is_an_error_on_diagnostics(ros_node):
     assert status.level == 2 and status.message.startswith("clocks: the LiDAR frame is stamped -"), status
     assert int(status.values["frames skipped: clocks"]) >= 10
     assert "frames calibrating" not in status.values
+
+
+def test_the_pose_node_feeds_the_network_at_the_rate_its_frames_are_stamped(ros_node):
+    """An OS1 in a 20 Hz mode and pose_node left at its default lidar_rate_hz (10): from the performer frames'
+    stamps it feeds the network (trained at 10 Hz) as two interleaved sequences, says so in its log and on
+    /diagnostics, and poses every frame."""
+    backend = RclpyBackend()
+    latest = {}
+    sub = ros_node.create_subscription(
+        DiagnosticArray, "/diagnostics", lambda m: latest.update((s.name, s) for s in msg_to_diagnostics(m).statuses),
+        10)
+    poses = []
+    pose_sub = ros_node.create_subscription(PoseStamped, "/lip/root_pose", poses.append, RELIABLE)
+    bone_pubs = [ros_node.create_publisher(Imu, f"/lip/bones/{n}/imu", BETWEEN_NODES) for n in IMU_NAMES]
+    cloud_pub = ros_node.create_publisher(PointCloud2, "/lip/performer/points", BETWEEN_NODES)
+    proc = _start("pose_node", "-p", "diagnostics_period_s:=0.3")
+    frames, rng = 30, np.random.default_rng(0)
+    try:
+        _spin_until(ros_node, lambda: all(p.get_subscription_count() for p in (*bone_pubs, cloud_pub)), proc, 60.0)
+        start = time.monotonic()
+        for k in range(frames):  # 20 Hz, stamped 50 ms apart
+            stamp = 1_000_000_000 + k * 50_000_000
+            for name, pub in zip(IMU_NAMES, bone_pubs, strict=True):
+                pub.publish(imu_to_msg(backend, imu_sample(stamp, name, [0.0, 0.0, 0.0, 1.0], [0.0] * 3,
+                                                           [0.0] * 3)))
+            points = rng.normal([5.0, 0.0, 0.0], [0.15, 0.2, 0.5], (300, 3)).astype(np.float32)
+            cloud_pub.publish(xyz_to_cloud(backend, points, stamp, "os_lidar"))
+            while (wait := start + (k + 1) / 20 - time.monotonic()) > 0:
+                rclpy.spin_once(ros_node, timeout_sec=wait)
+        _spin_until(ros_node, lambda: len(poses) == frames and int(getattr(
+            latest.get("pose_node: frames"), "values", {}).get("frames pose", 0)) == frames, proc)
+    finally:
+        ros_node.destroy_subscription(sub)
+        ros_node.destroy_subscription(pose_sub)
+        proc.send_signal(signal.SIGINT)
+        out = proc.communicate(timeout=30)[0]
+    assert proc.returncode == 0 and "Traceback" not in out, out
+    assert "the 20 Hz frames (measured from their stamps) are fed to it as 2 interleaved sequences" in out, out
+    status = latest["pose_node: frames"]
+    assert status.values["interleaved sequences"] == "2" and status.values["sequences"] == "2", status
 
 
 def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_node):

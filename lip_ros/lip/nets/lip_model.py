@@ -194,7 +194,7 @@ class LipModel:
         if lidar_rate_hz is not None and not lidar_rate_hz > 0:
             raise ValueError(f"lidar_rate_hz must be > 0, got {lidar_rate_hz}")
         #: interleaved sequences the frames are fed as (the LiDAR's rate over the training's, at least 1)
-        self.interleave = max(1, round((lidar_rate_hz or self.config.rate_hz) / self.config.rate_hz))
+        self.interleave = self.interleave_for(lidar_rate_hz or self.config.rate_hz)
         self._pres = self._preprocessors()
         self._states: list[State | None] = [None] * self.interleave
         self._turn = 0  # the sequence of the next frame
@@ -210,6 +210,11 @@ class LipModel:
         net = LipNet(LipConfig.load(path.with_suffix(".json")))
         net.load_state_dict(torch.load(path.with_suffix(".pt"), map_location="cpu", weights_only=True))
         return cls(net, bone_tolerance_deg, surface_fit, lidar_rate_hz)
+
+    def interleave_for(self, lidar_rate_hz: float) -> int:
+        """How many interleaved sequences frames at ``lidar_rate_hz`` are fed as: the rate over the training's,
+        rounded, at least 1."""
+        return max(1, round(lidar_rate_hz / self.config.rate_hz))
 
     def for_rate(self, lidar_rate_hz: float) -> LipModel:
         """The same network and settings for a LiDAR at ``lidar_rate_hz``, with a streaming state of its own."""

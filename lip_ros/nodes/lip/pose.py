@@ -106,11 +106,9 @@ class PoseNode(GraphNode):
                                   lidar_rate_hz=p["lidar_rate_hz"])
         except (OSError, ValueError, KeyError, RuntimeError) as exc:
             raise ParameterError(f"cannot load weights {p['weights'] or '(shipped)'}: {exc}") from exc
-        if model.interleave > 1:
-            self.get_logger().info(f"the network learned motion at {model.config.rate_hz:g} Hz: the "
-                                   f"{p['lidar_rate_hz']:g} Hz frames are fed to it as {model.interleave} "
-                                   "interleaved sequences")
         self.stage = PoseStage(model, max_gap_ns=int(p["max_pose_gap_s"] * 1e9))
+        self._interleave = 1
+        self._say_interleave(p["lidar_rate_hz"], "lidar_rate_hz")
         self._arrivals = arrivals
         self._latency = LatencyWindow()  # last input of a frame -> its outputs published
         self._graph_latency = LatencyWindow()  # cloud received by segmentation_node (same process) -> published
@@ -133,6 +131,16 @@ class PoseNode(GraphNode):
             self.add_input(f"bone {name}", topic, Imu, p["lidar_rate_hz"],
                            lambda msg, name=name: self._on_input(name, msg), from_graph=True)
         self.get_logger().info(f"ready; weights {p['weights'] or '(shipped)'}")
+
+    def _say_interleave(self, rate_hz: float, source: str) -> None:
+        """Log how the network is fed frames at ``rate_hz`` (from ``source``) when that changes."""
+        model = self.stage.model
+        if model.interleave == self._interleave:
+            return
+        self._interleave = model.interleave
+        self.get_logger().info(f"the network learned motion at {model.config.rate_hz:g} Hz: the {rate_hz:g} Hz "
+                               f"frames ({source}) are fed to it as {model.interleave} interleaved sequence"
+                               f"{'s' if model.interleave > 1 else ''}")
 
     def _on_ground(self, level: np.ndarray) -> None:
         self.stage.level = level
@@ -164,6 +172,7 @@ class PoseNode(GraphNode):
         rot = np.stack([items[n][0] for n in IMU_NAMES])
         acc = np.stack([items[n][1] for n in IMU_NAMES])
         pose, _, _ = self.stage.estimate(stamp_ns, points, rot, acc)
+        self._say_interleave(round(self.stage.period.rate_hz or 0.0, 1), "measured from their stamps")
         frame_id = self.params["frame_id"] or cloud_frame
         messages = pose_messages(self.backend, LIP_TOPICS, self.stage.skeleton, stamp_ns, frame_id, pose.local_rot,
                                  pose.glob_rot, pose.joint_pos)
@@ -189,7 +198,8 @@ class PoseNode(GraphNode):
         """Poses published, sequences started, inputs waiting, latencies."""
         level = DiagnosticLevel.OK if self.frames[Outcome.POSE.value] else DiagnosticLevel.WARN
         message = "estimating" if level == DiagnosticLevel.OK else "no pose yet"
-        return level, message, {"sequences": self.stage.sequences, "waiting stamps": self._joiner.open_stamps,
+        return level, message, {"sequences": self.stage.sequences, "interleaved sequences": self._interleave,
+                                "waiting stamps": self._joiner.open_stamps,
                                 "performer clouds without bones": self._without_bones,
                                 **{f"performer {k}": v for k, v in self.stage.model.performer_shape.items()},
                                 **self._latency.values("latency_ms"),
