@@ -12,10 +12,13 @@ the shift of the DOT's stamps that best lines the two up:
   10 % of the height from the trunk's vertical axis): connected groups of
   points, elongated, their principal direction. The floor and the height are
   running medians of the performer's own lowest and highest points, so
-  neither the ground plane nor the performer's size need to be known; where
-  a band's points lie farther apart than the 6 cm that links them (a limb
-  far from the LiDAR, a few beams across), they link by their own spacing
-  instead.
+  neither the ground plane nor the performer's size need to be known. Where
+  the 6 cm that links them finds no limb because the performer's points lie
+  farther apart than that, up and down or sideways (a limb far from the
+  LiDAR, a few beams across), they link by the points' own spacing instead,
+  measured on the whole performer in each of the two directions: a spinning
+  LiDAR's rows and columns need not be alike (an OS1-128's rows are 0.35 deg
+  apart, its columns 0.18 deg at 2048 and 0.70 deg at 512).
 * :class:`LatencyEstimator` compares, for every observed frame and every
   latency of a grid (:class:`LatencyConfig`), the DOT's bone direction at
   the pose time plus that latency with the nearest limb axis seen (the two
@@ -31,11 +34,13 @@ Accuracy on the rig: docs/conventions.md ("DOT latency"); tests:
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 __all__ = ["LatencyConfig", "LimbFinder", "LatencyEstimator", "LIMB_SENSORS"]
 
@@ -63,9 +68,10 @@ class LatencyConfig:
     forearm_off_trunk: float = 0.1  # arm points are farther than this from the trunk's axis / body height
     link_m: float = 0.06  # points closer than this are one limb
     min_points: int = 6  # of a limb
-    sparse_link: float = 2.0  # where a band has no limb so and its points lie farther apart than link_m, they
-    sparse_min_points: int = 4  # link closer than this many times their spacing, and a limb needs this many
-    sparse_min_span: float = 2.5  # and spans this many times their spacing along its axis (three beams or more)
+    sparse_link: float = 2.0  # where a band has no limb so and the performer's points lie farther apart than
+    sparse_min_points: int = 4  # link_m up and down or sideways, they link within this many of their spacings in
+    sparse_min_span: float = 2.5  # each direction (never less than link_m), and a limb needs this many points
+    #                               spanning this many spacings along its axis (three beams or more)
     min_length_m: float = 0.1  # a limb's points span at least this along its axis
     min_elongation: float = 4.0  # first / second principal variance
     history: int = 30  # frames of lowest and highest points for the floor and the body height
@@ -107,36 +113,39 @@ class LimbFinder:
         if height <= 0.0:
             return found
         h = (z - floor) / height
-        found["shank"] = self._groups(points[(h > c.shank_band[0]) & (h < c.shank_band[1])])
+        spacing = functools.cache(lambda: _spacings(points))  # measured where a band needs it
+        found["shank"] = self._groups(points[(h > c.shank_band[0]) & (h < c.shank_band[1])], spacing)
         trunk = (h > c.trunk_band[0]) & (h < c.trunk_band[1])
         if trunk.sum() >= c.min_points:
             off = np.linalg.norm(points[:, :2] - np.median(points[trunk, :2], axis=0), axis=1) / height
             found["forearm"] = self._groups(points[(h > c.forearm_band[0]) & (h < c.forearm_band[1])
-                                                   & (off > c.forearm_off_trunk)])
+                                                   & (off > c.forearm_off_trunk)], spacing)
         return found
 
-    def _groups(self, points: np.ndarray) -> np.ndarray:
+    def _groups(self, points: np.ndarray, spacing: Callable[[], tuple[float, float]]) -> np.ndarray:
         """Principal axes (K, 3) of the connected, elongated groups of ``points``: linked closer than ``link_m``;
-        where that finds none because the points lie farther apart than that (a limb far from the LiDAR, a few
-        beams across), linked by their own spacing instead."""
+        where that finds none because the performer's points lie farther apart than that up and down or sideways
+        (``spacing()``: :func:`_spacings`; far from the LiDAR, a few beams across a limb), linked by the spacing in
+        each direction instead."""
         c = self.config
         if len(points) < c.sparse_min_points:
             return np.zeros((0, 3))
         points = points[:: -(-len(points) // _MAX_GROUPED)]  # thinned evenly: the groups' axes stay
-        squared = np.sum((points[:, None, :] - points[None, :, :]) ** 2, axis=-1)
-        axes = self._elongated(points, squared <= c.link_m**2, c.min_points, c.min_length_m)
-        if len(axes):
-            return axes
-        np.fill_diagonal(squared, np.inf)
-        spacing = float(np.sqrt(np.median(squared.min(axis=1))))  # median distance to the nearest neighbour
-        if spacing <= c.link_m:  # not sparse: the points fell apart otherwise (a limb hidden in part, no limb)
-            return axes
-        return self._elongated(points, squared <= (c.sparse_link * spacing) ** 2, c.sparse_min_points,
-                               max(c.min_length_m, c.sparse_min_span * spacing))
+        offsets = points[:, None, :] - points[None, :, :]
+        up = np.abs(offsets[..., 2])
+        side = np.hypot(offsets[..., 0], offsets[..., 1])
+        axes = self._elongated(points, up**2 + side**2 <= c.link_m**2, c.min_points, c.min_length_m)
+        if len(axes) or max(spacing()) <= c.link_m:  # found, or not sparse: the points fell apart otherwise (a
+            return axes  # limb hidden in part, no limb)
+        link_up, link_side = (max(c.link_m, c.sparse_link * s) for s in spacing())
+        near = (up / link_up) ** 2 + (side / link_side) ** 2 <= 1.0
+        return self._elongated(points, near, c.sparse_min_points, c.min_length_m, spacing())
 
-    def _elongated(self, points: np.ndarray, near: np.ndarray, min_points: int, min_length_m: float) -> np.ndarray:
+    def _elongated(self, points: np.ndarray, near: np.ndarray, min_points: int, min_length_m: float,
+                   spacing: tuple[float, float] | None = None) -> np.ndarray:
         """Principal axes (K, 3) of the elongated groups that ``near`` (N, N) links, of at least ``min_points``
-        spanning ``min_length_m`` along the axis."""
+        spanning ``min_length_m`` along the axis, and ``sparse_min_span`` of the points' ``spacing`` (up and down,
+        sideways) in the axis's direction if given."""
         c = self.config
         labels = _components(near)
         axes = []
@@ -146,14 +155,44 @@ class LimbFinder:
                 continue
             variance, vectors = np.linalg.eigh(np.cov(group.T))
             axis = vectors[:, 2]
-            along = group @ axis
-            if variance[2] >= c.min_elongation * variance[1] and np.ptp(along) >= min_length_m:
+            needed = min_length_m
+            if spacing is not None:  # the spacing in the axis's direction: up and down for a vertical limb
+                step = 1.0 / np.hypot(axis[2] / spacing[0], np.hypot(axis[0], axis[1]) / spacing[1])
+                needed = max(needed, c.sparse_min_span * step)
+            if variance[2] >= c.min_elongation * variance[1] and np.ptp(group @ axis) >= needed:
                 axes.append(axis)
         return np.array(axes).reshape(-1, 3)
 
 
-#: At most this many points of one band are grouped (more are thinned evenly).
+def _spacings(points: np.ndarray) -> tuple[float, float]:
+    """How far apart the performer's points (N, 3) lie up and down, and sideways: the lower quartiles, over up to
+    ``_MAX_GROUPED`` of them, of the distance to the nearest point more above or below than beside it, and to the
+    nearest more beside than above or below (among its ``_NEIGHBOURS`` nearest). Measured over the whole performer,
+    whose trunk is several beams wide and tall: a limb's own points may have no neighbour beside them but the
+    other limb. The lower quartile is the beams' spacing where the body faces the LiDAR (the median, taken farther
+    apart where it turns away, linked the two shanks at 12 m). A direction in which no point has a neighbour takes
+    the other's spacing (inf for both with fewer than 2 points)."""
+    if len(points) < 2:
+        return np.inf, np.inf
+    tree = cKDTree(points)
+    queries = points[:: -(-len(points) // _MAX_GROUPED)]
+    distance, index = tree.query(queries, k=min(_NEIGHBOURS + 1, len(points)))
+    distance, offsets = distance[:, 1:], points[index[:, 1:]] - queries[:, None, :]  # the point itself first
+    up = np.abs(offsets[..., 2]) > np.hypot(offsets[..., 0], offsets[..., 1])
+    spacing = []
+    for along in (up, ~up):
+        nearest = np.where(along, distance, np.inf).min(axis=1)
+        nearest = nearest[np.isfinite(nearest)]
+        spacing.append(float(np.percentile(nearest, 25)) if len(nearest) else np.inf)
+    vertical, horizontal = spacing
+    return (horizontal if np.isinf(vertical) else vertical), (vertical if np.isinf(horizontal) else horizontal)
+
+
+#: At most this many points of one band are grouped (more are thinned evenly); as many measure the spacings.
 _MAX_GROUPED = 300
+#: The spacings up and down and sideways are looked for among a point's this many nearest neighbours (a beam's
+#: next in its row and the next row's, where one direction's spacing is up to 4 times the other's).
+_NEIGHBOURS = 12
 
 
 def _components(near: np.ndarray) -> np.ndarray:
