@@ -57,8 +57,8 @@ class LatencyConfig:
     high_ns: int = 240_000_000  # 0-200 ms can be estimated (an estimate below 0 is taken as 0)
     step_ns: int = 4_000_000
     window: int = 300  # frames whose costs are summed, per sensor (30 s at 10 Hz)
-    min_frames: int = 60  # frames observed before the first estimate
-    every: int = 25  # frames between two estimates
+    min_frames: int = 15  # frames observed before the first estimate (docs/lip/transfer.md "Sooner")
+    every: int = 15  # frames between two estimates
     max_angle_deg: float = 15.0  # the angle between the DOT's bone and the nearest limb axis is truncated here
     contrast_ns: int = 40_000_000  # the minimum must stand out against latencies this far on either side ...
     min_contrast_deg2: float = 4.0  # ... by this much (mean truncated squared angle per frame)
