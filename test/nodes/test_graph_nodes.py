@@ -36,6 +36,7 @@ from lip_msgs_py import (
 from lip_ros.bagio import bag_span, read_messages
 from lip_ros.core.urdf import URDF_FILE
 from lip_ros.lip.batch import replay_bag
+from lip_ros.lip.dot_latency import LatencyConfig
 from lip_ros.lip.nets.lip_model import LipModel
 from lip_ros.lip.pipeline import LipPipeline, PipelineConfig
 from lip_ros.lip.sensors import IMU_NAMES
@@ -350,5 +351,5 @@ def test_the_dot_heading_reset_is_asked_for_whenever_a_calibration_starts(ros_no
     assert statuses["calibration_node: frames"].values["DOT heading reset"] == "done: 4 DOTs reset"
     assert statuses["calibration_node: frames"].values["DOT headings"] == "unknown"  # nothing calibrated
     assert (statuses["calibration_node: frames"].values[DOT_LATENCY_VALUE]
-            == ", ".join(f"{n} {ms} (not estimated: 0 of 60 frames scored)"
+            == ", ".join(f"{n} {ms} (not estimated: 0 of {LatencyConfig().min_frames} frames scored)"
                          for n, ms in zip(IMU_NAMES, (30, 40, 50, 61))))
