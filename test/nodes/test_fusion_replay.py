@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 from pathlib import Path
 
@@ -96,7 +97,10 @@ def test_the_summary_says_which_calibration_was_used(replay: tuple[Path, str]) -
     out, stdout = replay
     assert ("calibration: solved from the bag's A-pose and T-pose (DOT headings: one shared), saved to "
             f"{out}_calibration.yaml") in stdout
-    assert "DOT latency taken off (ms): left_wrist 0 (" in stdout
+    # each DOT's latency, estimated or why not (the demo's DOTs are on time; its left wrist comes out 18 ms late:
+    # the estimate's bias, docs/lip/transfer.md "Sooner")
+    assert re.search(r"DOT latency taken off \(ms\): left_wrist \d+ \((estimated|not estimated: [^)]+)\), "
+                     r"right_wrist \d+ \(", stdout), stdout
 
 
 def test_a_calibration_left_by_an_earlier_run_is_never_reused_silently(tmp_path: Path) -> None:
