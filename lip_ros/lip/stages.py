@@ -553,8 +553,8 @@ class PoseStage:
             last = stamp_ns
             self.period.add(stamp_ns)
             rate = self.period.rate_hz
-            if rate is not None and self.model.interleave_for(rate) != interleave:
-                rates[k], interleave = rate, self.model.interleave_for(rate)
+            if rate is not None and (measured := self.model.interleave_for(rate)) != interleave:
+                rates[k], interleave = rate, measured
                 new.add(k)
         level = self.level
         if level is not None:  # into P, where the network works

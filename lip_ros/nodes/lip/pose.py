@@ -107,8 +107,8 @@ class PoseNode(GraphNode):
         except (OSError, ValueError, KeyError, RuntimeError) as exc:
             raise ParameterError(f"cannot load weights {p['weights'] or '(shipped)'}: {exc}") from exc
         self.stage = PoseStage(model, max_gap_ns=int(p["max_pose_gap_s"] * 1e9))
-        self._interleave = 1
-        self._say_interleave(p["lidar_rate_hz"], "lidar_rate_hz")
+        self._interleave = 1  # the interleave logged last (1: nothing to say)
+        self._say_interleave("lidar_rate_hz", p["lidar_rate_hz"])
         self._arrivals = arrivals
         self._latency = LatencyWindow()  # last input of a frame -> its outputs published
         self._graph_latency = LatencyWindow()  # cloud received by segmentation_node (same process) -> published
@@ -132,12 +132,14 @@ class PoseNode(GraphNode):
                            lambda msg, name=name: self._on_input(name, msg), from_graph=True)
         self.get_logger().info(f"ready; weights {p['weights'] or '(shipped)'}")
 
-    def _say_interleave(self, rate_hz: float, source: str) -> None:
-        """Log how the network is fed frames at ``rate_hz`` (from ``source``) when that changes."""
+    def _say_interleave(self, source: str, rate_hz: float | None = None) -> None:
+        """Log how the network is fed frames at ``rate_hz`` (from ``source``; None: the rate the frames' stamps
+        show) when that changes."""
         model = self.stage.model
         if model.interleave == self._interleave:
             return
         self._interleave = model.interleave
+        rate_hz = rate_hz if rate_hz is not None else round(self.stage.period.rate_hz or 0.0, 1)
         self.get_logger().info(f"the network learned motion at {model.config.rate_hz:g} Hz: the {rate_hz:g} Hz "
                                f"frames ({source}) are fed to it as {model.interleave} interleaved sequence"
                                f"{'s' if model.interleave > 1 else ''}")
@@ -172,7 +174,7 @@ class PoseNode(GraphNode):
         rot = np.stack([items[n][0] for n in IMU_NAMES])
         acc = np.stack([items[n][1] for n in IMU_NAMES])
         pose, _, _ = self.stage.estimate(stamp_ns, points, rot, acc)
-        self._say_interleave(round(self.stage.period.rate_hz or 0.0, 1), "measured from their stamps")
+        self._say_interleave("measured from their stamps")  # where the stage set the model for the measured rate
         frame_id = self.params["frame_id"] or cloud_frame
         messages = pose_messages(self.backend, LIP_TOPICS, self.stage.skeleton, stamp_ns, frame_id, pose.local_rot,
                                  pose.glob_rot, pose.joint_pos)
