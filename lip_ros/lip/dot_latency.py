@@ -10,7 +10,9 @@ the shift of the DOT's stamps that best lines the two up:
   axes of the lower legs (points 7-22 % of the body's height above the floor)
   and of the arms away from the trunk (42-66 % of the height, farther than
   10 % of the height from the trunk's vertical axis): connected groups of
-  points, elongated, their principal direction. The floor and the height are
+  points, elongated, their principal direction (the shanks': the line of
+  their horizontal position on their height, which the band's cut does not
+  lean; :func:`_level_cut_axis`). The floor and the height are
   running medians of the performer's own lowest and highest points, so
   neither the ground plane nor the performer's size need to be known. Where
   the 6 cm that links them finds no limb because the performer's points lie
@@ -114,7 +116,7 @@ class LimbFinder:
             return found
         h = (z - floor) / height
         spacing = functools.cache(lambda: _spacings(points))  # measured where a band needs it
-        found["shank"] = self._groups(points[(h > c.shank_band[0]) & (h < c.shank_band[1])], spacing)
+        found["shank"] = self._groups(points[(h > c.shank_band[0]) & (h < c.shank_band[1])], spacing, cut=True)
         trunk = (h > c.trunk_band[0]) & (h < c.trunk_band[1])
         if trunk.sum() >= c.min_points:
             off = np.linalg.norm(points[:, :2] - np.median(points[trunk, :2], axis=0), axis=1) / height
@@ -122,11 +124,12 @@ class LimbFinder:
                                                    & (off > c.forearm_off_trunk)], spacing)
         return found
 
-    def _groups(self, points: np.ndarray, spacing: Callable[[], tuple[float, float]]) -> np.ndarray:
-        """Principal axes (K, 3) of the connected, elongated groups of ``points``: linked closer than ``link_m``;
-        where that finds none because the performer's points lie farther apart than that up and down or sideways
+    def _groups(self, points: np.ndarray, spacing: Callable[[], tuple[float, float]], cut: bool = False
+                ) -> np.ndarray:
+        """Axes (K, 3) of the connected, elongated groups of ``points``: linked closer than ``link_m``; where that
+        finds none because the performer's points lie farther apart than that up and down or sideways
         (``spacing()``: :func:`_spacings`; far from the LiDAR, a few beams across a limb), linked by the spacing in
-        each direction instead."""
+        each direction instead. ``cut``: the band's two levels cut every limb in it (:func:`_level_cut_axis`)."""
         c = self.config
         if len(points) < c.sparse_min_points:
             return np.zeros((0, 3))
@@ -134,18 +137,18 @@ class LimbFinder:
         offsets = points[:, None, :] - points[None, :, :]
         up = np.abs(offsets[..., 2])
         side = np.hypot(offsets[..., 0], offsets[..., 1])
-        axes = self._elongated(points, up**2 + side**2 <= c.link_m**2, c.min_points, c.min_length_m)
+        axes = self._elongated(points, up**2 + side**2 <= c.link_m**2, c.min_points, c.min_length_m, cut)
         if len(axes) or max(spacing()) <= c.link_m:  # found, or not sparse: the points fell apart otherwise (a
             return axes  # limb hidden in part, no limb)
         link_up, link_side = (max(c.link_m, c.sparse_link * s) for s in spacing())
         near = (up / link_up) ** 2 + (side / link_side) ** 2 <= 1.0
-        return self._elongated(points, near, c.sparse_min_points, c.min_length_m, spacing())
+        return self._elongated(points, near, c.sparse_min_points, c.min_length_m, cut, spacing())
 
-    def _elongated(self, points: np.ndarray, near: np.ndarray, min_points: int, min_length_m: float,
+    def _elongated(self, points: np.ndarray, near: np.ndarray, min_points: int, min_length_m: float, cut: bool,
                    spacing: tuple[float, float] | None = None) -> np.ndarray:
-        """Principal axes (K, 3) of the elongated groups that ``near`` (N, N) links, of at least ``min_points``
-        spanning ``min_length_m`` along the axis, and ``sparse_min_span`` of the points' ``spacing`` (up and down,
-        sideways) in the axis's direction if given."""
+        """Axes (K, 3) of the elongated groups that ``near`` (N, N) links, of at least ``min_points`` spanning
+        ``min_length_m`` along the principal axis, and ``sparse_min_span`` of the points' ``spacing`` (up and down,
+        sideways) in the axis's direction if given; the principal axis, or where ``cut`` :func:`_level_cut_axis`."""
         c = self.config
         labels = _components(near)
         axes = []
@@ -160,8 +163,30 @@ class LimbFinder:
                 step = 1.0 / np.hypot(axis[2] / spacing[0], np.hypot(axis[0], axis[1]) / spacing[1])
                 needed = max(needed, c.sparse_min_span * step)
             if variance[2] >= c.min_elongation * variance[1] and np.ptp(group @ axis) >= needed:
-                axes.append(axis)
+                axes.append(_level_cut_axis(group, axis) if cut else axis)
         return np.array(axes).reshape(-1, 3)
+
+
+def _level_cut_axis(group: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The axis (3,) of a limb whose points (N, 3) two levels cut (the top and bottom of its band), from their
+    principal ``axis``: the least-squares line of their horizontal position on their height. The points are the
+    side of the limb facing the LiDAR; cut by two levels, a tilted limb's side is a strip with level ends, whose
+    principal axis leans farther from the vertical than the limb (a walking shank's by up to 2 deg: on rig walks
+    the ankle DOTs' latencies came out 5-8 ms late with it, 2-4 ms with this; docs/lip/transfer.md "Late by the
+    cut"); each level's
+    points are centred on a line parallel to the limb. A limb closer to level than ``_MIN_STEEPNESS`` (the
+    vertical part of the unit axis) keeps its principal axis."""
+    if abs(axis[2]) < _MIN_STEEPNESS:
+        return axis
+    height = group[:, 2] - group[:, 2].mean()
+    slope = (group[:, :2] - group[:, :2].mean(axis=0)).T @ height / (height @ height)
+    line = np.array([slope[0], slope[1], 1.0])
+    return line / np.linalg.norm(line)
+
+
+#: Below this vertical part of its unit principal axis (60 deg from the vertical) a cut limb keeps that axis: its
+#: levels hold too few points to place a line through.
+_MIN_STEEPNESS = 0.5
 
 
 def _spacings(points: np.ndarray) -> tuple[float, float]:

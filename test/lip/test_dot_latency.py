@@ -98,10 +98,12 @@ def test_a_limb_sampled_as_sparsely_as_far_from_the_lidar_is_found():
 def _scanned_cylinder(top: np.ndarray, direction: np.ndarray, radius_m: float, length_m: float,
                      columns: int) -> np.ndarray:
     """The returns of a cylinder (from ``top`` along ``direction``) seen by an OS1-128 at (0, 0, 1.2) with
-    ``columns`` columns, its rows 0.35 deg apart: the first hit of each ray."""
+    ``columns`` columns, its rows 0.35 deg apart: the first hit of each ray (of the columns within 0.08 rad of the
+    cylinder's middle)."""
     elevation = np.radians(np.arange(-22.5, 22.5, 0.35))
     azimuth = np.arange(columns) * 2.0 * np.pi / columns
-    azimuth = azimuth[np.abs(np.angle(np.exp(1j * (azimuth - np.arctan2(top[1], top[0]))))) < 0.05]
+    middle = top + 0.5 * length_m * direction
+    azimuth = azimuth[np.abs(np.angle(np.exp(1j * (azimuth - np.arctan2(middle[1], middle[0]))))) < 0.08]
     e, a = np.meshgrid(elevation, azimuth)
     rays = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
     origin = np.array([0.0, 0.0, 1.2])
@@ -131,6 +133,25 @@ def test_a_limb_whose_rows_lie_farther_apart_than_its_columns_is_found(tilt_deg)
     axes = LimbFinder().axes(np.concatenate([feet, trunk, shank]))
     assert len(axes["shank"]) == 1
     assert abs(axes["shank"][0] @ direction) > np.cos(np.radians(6.0))
+
+
+@pytest.mark.parametrize(("columns", "tilt_deg", "sideways"),
+                         [(1024, 25.0, True), (1024, 40.0, True), (2048, 25.0, True), (2048, -40.0, True),
+                          (1024, 25.0, False)])
+def test_a_tilted_shank_cut_by_its_band_is_found_along_its_axis(columns, tilt_deg, sideways):
+    """The shank band's two levels cut a tilted shank's scanned side into a strip with level ends, whose principal
+    axis leans 3.5-4.5 deg farther from the vertical than the shank at 4 m (swung sideways, as seen from the
+    LiDAR); the line of the points' horizontal position on their height lies along it (within 0.6 deg here)."""
+    tilt = np.radians(tilt_deg)
+    lean = np.array([0.0, np.sin(tilt), 0.0]) if sideways else np.array([np.sin(tilt), 0.0, 0.0])
+    direction = lean + np.array([0.0, 0.0, -np.cos(tilt)])
+    trunk = _scanned_cylinder(np.array([4.0, 0.0, 1.75]), np.array([0.0, 0.0, -1.0]), 0.15, 0.875, columns)
+    knee = np.array([4.0, -0.1, 0.45]) - 0.225 * lean / np.cos(tilt)  # the band's middle in front of the trunk
+    shank = _scanned_cylinder(knee, direction, 0.05, 0.45 / np.cos(tilt), columns)
+    feet = np.array([[4.0, -0.1, 0.0], [4.0, -0.1, 0.01]])
+    axes = LimbFinder().axes(np.concatenate([feet, trunk, shank]))
+    assert len(axes["shank"]) == 1
+    assert abs(axes["shank"][0] @ direction) > np.cos(np.radians(1.5))
 
 
 def test_a_latency_set_later_moves_the_buffered_samples_as_if_it_had_been_configured():
