@@ -438,6 +438,11 @@ class GraphNode(Node):
                                       "on, its stamps moved on by the step")
         return line_ns
 
+    def input_rate_hz(self, name: str) -> float:
+        """Input ``name``'s rate as its stamps show it (:attr:`SensorMonitor.measured_rate_hz`): a sensor stamping each
+        period; its expected rate until known."""
+        return self._inputs[name][2].measured_rate_hz
+
     def input_delay_s(self, name: str) -> float | None:
         """Input ``name``'s recent median of receive time less stamp (:meth:`SensorMonitor.delay_s`)."""
         return self._inputs[name][2].delay_s()

@@ -443,7 +443,7 @@ class TrajectoryNode(GraphNode):
                 del self._received[next(iter(self._received))]
         start = time.monotonic()
         steps = self.pipeline.add_sweep(sweep.points, sweep.point_ns, sweep.stamp_ns, max_register=2)
-        budget = _CATCH_UP_SHARE / self.params["lidar_rate_hz"]
+        budget = _CATCH_UP_SHARE / self.input_rate_hz(_LIDAR)  # of the period the sweeps' stamps show
         while self.pipeline.backlog and self.pipeline.offset_ns is not None and time.monotonic() - start < budget:
             steps += self.pipeline.catch_up(1)
         if not synced and self.pipeline.offset_ns is not None:
