@@ -173,9 +173,8 @@ def _level_cut_axis(group: np.ndarray, axis: np.ndarray) -> np.ndarray:
     side of the limb facing the LiDAR; cut by two levels, a tilted limb's side is a strip with level ends, whose
     principal axis leans farther from the vertical than the limb (a walking shank's by up to 2 deg: on rig walks
     the ankle DOTs' latencies came out 5-8 ms late with it, 2-4 ms with this; docs/lip/transfer.md "Late by the
-    cut"); each level's
-    points are centred on a line parallel to the limb. A limb closer to level than ``_MIN_STEEPNESS`` (the
-    vertical part of the unit axis) keeps its principal axis."""
+    cut"); each level's points are centred on a line parallel to the limb. A limb closer to level than
+    ``_MIN_STEEPNESS`` (the vertical part of the unit axis) keeps its principal axis."""
     if abs(axis[2]) < _MIN_STEEPNESS:
         return axis
     height = group[:, 2] - group[:, 2].mean()

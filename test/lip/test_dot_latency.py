@@ -121,10 +121,10 @@ def _scanned_cylinder(top: np.ndarray, direction: np.ndarray, radius_m: float, l
 def test_a_limb_whose_rows_lie_farther_apart_than_its_columns_is_found(tilt_deg):
     """At 2048 columns and 11 m an OS1-128's columns are 3.4 cm apart, its rows 6.7 cm: the points count as dense
     (nearest neighbours closer than the 6 cm link) while no two rows link; each direction's own spacing, measured
-    on the scanned trunk, links them. The axis within 6 deg (a limb cut by the band's horizontal planes leans a few
-    degrees off, as densely sampled ones do; a tilt of 5 deg moves the limb less than a column over the band: off
-    up to 8 deg, not tested). At 12 m the band (26 cm of a 1.75 m body) holds 3 or 4 rows, and with 3 the span rule
-    refuses the limb, as at 1024 columns."""
+    on the scanned trunk, links them. The axis within 6 deg (three or four rows across the band; a tilt of 5 deg
+    moves the limb less than a column over the band: off up to 8 deg with the principal axis, not tested). At 12 m
+    the band (26 cm of a 1.75 m body) holds 3 or 4 rows, and with 3 the span rule refuses the limb, as at 1024
+    columns."""
     tilt = np.radians(tilt_deg)
     direction = np.array([0.0, np.sin(tilt), -np.cos(tilt)])  # swung sideways, as seen from the LiDAR
     trunk = _scanned_cylinder(np.array([11.0, 0.0, 1.75]), np.array([0.0, 0.0, -1.0]), 0.15, 0.875, 2048)
