@@ -140,8 +140,8 @@ def test_a_limb_whose_rows_lie_farther_apart_than_its_columns_is_found(tilt_deg)
                           (1024, 25.0, False)])
 def test_a_tilted_shank_cut_by_its_band_is_found_along_its_axis(columns, tilt_deg, sideways):
     """The shank band's two levels cut a tilted shank's scanned side into a strip with level ends, whose principal
-    axis leans 3.5-4.5 deg farther from the vertical than the shank at 4 m (swung sideways, as seen from the
-    LiDAR); the line of the points' horizontal position on their height lies along it (within 0.8 deg here)."""
+    axis leans farther from the vertical than the shank: 3.5-4.5 deg off it at 4 m (swung sideways, as seen from
+    the LiDAR); the line of the points' horizontal position on their height lies along it (within 0.8 deg here)."""
     tilt = np.radians(tilt_deg)
     lean = np.array([0.0, np.sin(tilt), 0.0]) if sideways else np.array([np.sin(tilt), 0.0, 0.0])
     direction = lean + np.array([0.0, 0.0, -np.cos(tilt)])
