@@ -47,11 +47,18 @@ def _kill_and_wait(parent: subprocess.Popen, children: list[int], timeout_s: flo
     return left
 
 
-def test_a_killed_hsc4d_graph_takes_its_body_node_along(ros_node):
-    graph = subprocess.Popen([console_script("fusion_node"), "--ros-args", "-p", "branch:=hsc4d"],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+def test_a_killed_hsc4d_graph_takes_its_body_node_along(ros_node, tmp_path: Path):
+    """Killed once the body node is ready. Its name is on the graph before its start-up is done, and a body node
+    told to stop during its start-up ends only once that is done: killed at its name, under a whole suite's load,
+    it outlived the 15 s allowed here once (session 42's fresh-clone run; that start-up was the likely cause, not
+    confirmed)."""
+    log = tmp_path / "graph.log"
+    with log.open("w") as stderr:
+        graph = subprocess.Popen([console_script("fusion_node"), "--ros-args", "-p", "branch:=hsc4d"],
+                                 stdout=subprocess.DEVNULL, stderr=stderr)
     try:
         _wait_for(lambda: "hsc4d_body_node" in ros_node.get_node_names(), 60.0, "the body node", ros_node)
+        _wait_for(lambda: "[hsc4d_body_node]: ready;" in log.read_text(), 120.0, "the body node's start-up")
         children = descendants(graph.pid)
         assert any("lip_ros.nodes.hsc4d.body" in _cmdline(p) for p in children), list(map(_cmdline, children))
         assert _kill_and_wait(graph, children, 15.0) == []
