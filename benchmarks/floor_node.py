@@ -1,7 +1,7 @@
 """The transport floor of the LIP graph: a node that only receives the Ouster cloud and publishes a PoseStamped.
 
 It subscribes to the cloud as ``segmentation_node`` does (SensorDataQoS, the
-message deserialised by rclpy), and publishes on :data:`FLOOR_TOPIC` an
+message's bytes, whose header is read in place), and publishes on :data:`FLOOR_TOPIC` an
 identity PoseStamped with the cloud's header (reliable, as ``/lip/root_pose``).
 ``bench_graph.py`` starts it beside the graph in the same run: the latency from
 the player's publication to this pose's reception is what any node pays to
@@ -21,6 +21,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 
+from lip_msgs_py.cdr import cdr_stamp
+from lip_msgs_py.stamps import NS_PER_S
 from lip_ros.lip.sensors import LIDAR_TOPIC
 from lip_ros.middleware import use_lip_dds_profile
 
@@ -38,13 +40,13 @@ def main() -> int:
     pub = node.create_publisher(PoseStamped, FLOOR_TOPIC, QoSProfile(depth=10,
                                                                       reliability=ReliabilityPolicy.RELIABLE))
 
-    def answer(cloud: PointCloud2) -> None:
+    def answer(data: bytes) -> None:
         pose = PoseStamped()
-        pose.header = cloud.header
+        pose.header.stamp.sec, pose.header.stamp.nanosec = divmod(cdr_stamp(data), NS_PER_S)
         pose.pose.orientation.w = 1.0
         pub.publish(pose)
 
-    node.create_subscription(PointCloud2, LIDAR_TOPIC, answer, qos_profile_sensor_data)
+    node.create_subscription(PointCloud2, LIDAR_TOPIC, answer, qos_profile_sensor_data, raw=True)
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -58,9 +58,9 @@ from lip_ros.resources import params_path
 
 __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "non_negative", "numbers", "GraphNode",
            "LatencyWindow", "RELIABLE", "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input",
-           "LATCHED", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals", "LocalTopics",
-           "BetweenNodesPublisher", "DIRECT_INPUTS_PARAM", "tf_publisher", "rejection_reason", "SKIPPED",
-           "stop_on_signals"]
+           "LATCHED", "POLL_PERIOD_S", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals",
+           "LocalTopics", "BetweenNodesPublisher", "DIRECT_INPUTS_PARAM", "tf_publisher", "rejection_reason",
+           "SKIPPED", "stop_on_signals"]
 
 #: How ``GraphNode.count_frame`` names a frame that ended without a pose.
 SKIPPED = "skipped"
@@ -73,6 +73,9 @@ BETWEEN_NODES = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: SensorDataQoS (best effort) for the 60 Hz IMUs, with room for the samples that arrive while a frame is processed.
 IMU_INPUT = QoSProfile(depth=50, reliability=qos_profile_sensor_data.reliability,
                        durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
+#: how often a node takes the messages of its polled inputs (:meth:`GraphNode.add_input`, ``polled``) and looks at
+#: what waits on them, seconds (steady time)
+POLL_PERIOD_S = 0.02
 #: seconds of the HSC4D suit's topics a subscription holds, for a node's longest callback (the trajectory node
 #: registering sweeps while the rest of its process wants the interpreter; the body node optimising a window:
 #: about a second measured for the first, more under load)
@@ -263,8 +266,12 @@ class LocalTopics:
         self._receivers.setdefault(topic, []).append(callback)
 
     def deliver(self, topic: str, msg: Any) -> None:
-        """Hand ``msg`` to this process's subscribers of ``topic``, in the order they subscribed."""
-        for callback in self._receivers.get(topic, ()):
+        """Hand ``msg`` to this process's subscribers of ``topic``, the last to subscribe first. A graph's nodes are
+        made in the data's order, so a node that also waits for what an earlier one makes of the message (pose_node
+        for the bones calibration_node makes of the performer's points) holds it when that comes: the frame
+        completes within the earlier node's publication, before the rest of that node's work (the DOT latency's
+        scoring)."""
+        for callback in reversed(self._receivers.get(topic, ())):
             callback(msg)
 
 

@@ -243,3 +243,26 @@ def test_nodes_of_one_process_hand_their_messages_over_directly() -> None:
         for node in (outside, alone, through_dds, direct, sender):
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def test_a_frame_completes_within_the_publication_of_its_last_part() -> None:
+    """A node made later (downstream) that joins a message with what an earlier node makes of it gets the message
+    first: when the earlier node publishes its part, the frame completes there, before that node's further work
+    (calibration_node scores the DOT latency after publishing the bones; before, pose_node waited for it)."""
+    topics, events = LocalTopics(), []
+    joined: dict[str, int] = {}
+
+    def calibration(points: int) -> None:  # subscribed first: the graph's nodes are made in the data's order
+        topics.deliver("/bones", points)
+        events.append("calibration: after-work")
+
+    def pose(part: str, value: int) -> None:
+        joined[part] = value
+        if len(joined) == 2:
+            events.append("pose: published")
+
+    topics.subscribe("/points", calibration)
+    topics.subscribe("/points", lambda m: pose("points", m))
+    topics.subscribe("/bones", lambda m: pose("bones", m))
+    topics.deliver("/points", 7)
+    assert events == ["pose: published", "calibration: after-work"]

@@ -89,6 +89,7 @@ from lip_ros.hsc4d.suit_restart import SuitRestart
 from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.nodes.base import (
     LATCHED,
+    POLL_PERIOD_S,
     RELIABLE,
     SUIT_QUEUE_S,
     GraphNode,
@@ -223,7 +224,7 @@ class BodyNode(GraphNode):
             self.add_input(f"suit {segment}", topic, Imu, p["suit_rate_hz"],
                            lambda data, segment=segment: self._on_imu(segment, data), suit_input(p["suit_rate_hz"]),
                            raw=True, polled=True)
-        self.create_timer(0.02, self._drain, self.group, clock=self.steady)
+        self.create_timer(POLL_PERIOD_S, self._drain, self.group, clock=self.steady)
         self.get_logger().info("ready; waiting for the trajectory node's fused poses")
 
     def _pose_publishers(self, topics: Any) -> dict[str, Any]:

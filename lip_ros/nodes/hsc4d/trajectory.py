@@ -79,6 +79,7 @@ from lip_ros.hsc4d.trajectory import RESUME_WAITS, TrajectoryConfig, TrajectoryP
 from lip_ros.nodes.base import (
     IMU_INPUT,
     LATCHED,
+    POLL_PERIOD_S,
     SUIT_QUEUE_S,
     GraphNode,
     LatencyWindow,
@@ -232,7 +233,7 @@ class TrajectoryNode(GraphNode):
         self.add_input(_SUIT_INPUTS[0], p["suit_odometry_topic"], Odometry, p["suit_rate_hz"], self._on_suit_odometry,
                        suit)
         self.add_input(_SUIT_INPUTS[1], p["pelvis_imu_topic"], Imu, p["suit_rate_hz"], self._on_pelvis, suit)
-        self.create_timer(0.02, self._drain, self.group, clock=self.steady)
+        self.create_timer(POLL_PERIOD_S, self._drain, self.group, clock=self.steady)
         self.create_timer(p["map_period_s"], self._publish_map, self.group, clock=self.steady)
         if self._resume_file is not None:
             self.create_timer(p["resume_period_s"], self._save_resume, self.group, clock=self.steady)

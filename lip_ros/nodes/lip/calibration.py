@@ -1,6 +1,8 @@
 """calibration_node: IMU synchronisation and the A/T-pose calibration; calibrated bone inertia out.
 
-Subscribes to the four DOTs (SensorDataQoS) and the performer's points of
+Subscribes to the four DOTs (SensorDataQoS; their samples are taken every
+``POLL_PERIOD_S`` and as each performer frame comes in, not one executor
+wake-up each: ``GraphNode.add_input(polled=True)``) and the performer's points of
 ``segmentation_node`` (reliable). For each performer frame, once the DOTs
 cover its pose time, it either feeds the automatic A-pose / T-pose
 calibration or publishes, per sensor, the bone's orientation R_L_B and free
@@ -31,6 +33,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -44,6 +47,7 @@ from lip_msgs_py import (
     msg_to_imu,
     read_header,
 )
+from lip_msgs_py.cdr import imu_samples
 from lip_ros.core.imu_sync import SyncConfig
 from lip_ros.core.rotations import matrix_to_quat
 from lip_ros.core.sensor_monitor import odd_delays
@@ -55,6 +59,7 @@ from lip_ros.nodes.base import (
     DIRECT_INPUTS_PARAM,
     IMU_INPUT,
     LATCHED,
+    POLL_PERIOD_S,
     GraphNode,
     LatencyWindow,
     Param,
@@ -140,9 +145,10 @@ class CalibrationNode(GraphNode):
         self._held_bones_reported: Counter[str] = Counter()
         self._clock_steps = 0  # clock steps of the frames and the DOTs logged so far
         self._last_sync = "no frame yet"
-        for name, topic in zip(IMU_NAMES, p["imu_topics"]):
-            self.add_input(name, topic, Imu, p["imu_rate_hz"], lambda msg, name=name: self._on_imu(name, msg),
-                           IMU_INPUT, stamped_at=0.0)
+        for name, topic in zip(IMU_NAMES, p["imu_topics"]):  # polled: no executor wake-up per sample
+            self.add_input(name, topic, Imu, p["imu_rate_hz"], lambda data, name=name: self._on_imu(name, data),
+                           IMU_INPUT, raw=True, polled=True, stamped_at=0.0)
+        self.create_timer(POLL_PERIOD_S, self.take_polled, self.group, clock=self.steady)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
                        self._on_performer, from_graph=True)
         subscribe_ground(self, p["ground_topic"], self._on_ground)
@@ -161,8 +167,10 @@ class CalibrationNode(GraphNode):
     def _on_ground(self, level: np.ndarray) -> None:
         self.stage.level = level
 
-    def _on_imu(self, name: str, msg: Imu) -> int:
-        sample = msg_to_imu(msg)
+    def _on_imu(self, name: str, data: bytes) -> int:
+        sample = imu_samples([data])[0]
+        if sample is None:  # not plain little-endian CDR, or a component not provided: read in full
+            sample = msg_to_imu(deserialize_message(data, Imu))
         reason = self.stage.add_imu(name, sample)
         if reason is not None:
             raise MalformedMessageError(reason)
@@ -172,6 +180,7 @@ class CalibrationNode(GraphNode):
     def _on_performer(self, msg: PointCloud2) -> int:
         stamp_ns, frame_id = read_header(msg)
         points = cloud_to_xyz(msg)
+        self.take_polled()  # the DOT samples received so far first, as if each had been taken on arrival
         self._publish(self.stage.add_frame(stamp_ns, stamp_ns, points, (frame_id, time.monotonic())))
         self._publish(self.stage.poll())
         return stamp_ns
