@@ -2,7 +2,7 @@
 
 It subscribes to the cloud as ``segmentation_node`` does (SensorDataQoS, the
 message's bytes, whose header is read in place), and publishes on :data:`FLOOR_TOPIC` an
-identity PoseStamped with the cloud's header (reliable, as ``/lip/root_pose``).
+identity PoseStamped with the cloud's stamp (reliable, as ``/lip/root_pose``).
 ``bench_graph.py`` starts it beside the graph in the same run: the latency from
 the player's publication to this pose's reception is what any node pays to
 receive a cloud and answer, whatever it computes; the graph's latency above it
