@@ -170,7 +170,10 @@ class CalibrationNode(GraphNode):
     def _on_imu(self, name: str, data: bytes) -> int:
         sample = imu_samples([data])[0]
         if sample is None:  # not plain little-endian CDR, or a component not provided: read in full
-            sample = msg_to_imu(deserialize_message(data, Imu))
+            try:
+                sample = msg_to_imu(deserialize_message(data, Imu))
+            except RuntimeError as exc:
+                raise MalformedMessageError(f"Imu CDR: {exc}") from exc
         reason = self.stage.add_imu(name, sample)
         if reason is not None:
             raise MalformedMessageError(reason)

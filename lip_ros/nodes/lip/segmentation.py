@@ -96,7 +96,12 @@ class SegmentationNode(GraphNode):
         received = time.monotonic()
         msg = cloud_msg(data)
         if msg is None:  # not plain little-endian CDR: deserialised in full
-            msg = deserialize_message(data, PointCloud2)
+            try:
+                msg = deserialize_message(data, PointCloud2)
+            except RuntimeError as exc:
+                self._last_status = f"malformed cloud: {exc}"
+                self.count_frame("skipped: malformed cloud", f"unreadable message: {exc}")
+                raise MalformedMessageError(f"PointCloud2 CDR: {exc}") from exc
         stamp_ns, frame_id = read_header(msg)
         try:
             points = cloud_to_array(msg)
