@@ -12,41 +12,34 @@ from lip_msgs_py.backend import Backend
 from lip_msgs_py.errors import MalformedMessageError
 from lip_msgs_py.geometry import point_msg, pose_msg
 
-__all__ = ["LINE_LIST", "SPHERE_LIST", "ADD", "BONES_ID", "JOINTS_ID", "skeleton_to_markers"]
+__all__ = ["LINE_LIST", "SPHERE_LIST", "ADD", "BONES_ID", "JOINTS_ID", "SKELETON_NS", "SKELETON_COLOR", "LINE_WIDTH_M",
+           "JOINT_DIAMETER_M", "skeleton_to_markers", "marker_color", "skeleton_lines"]
 
 #: visualization_msgs/Marker constants used here.
 LINE_LIST, SPHERE_LIST, ADD = 5, 7, 0
 #: Marker ids of the bones and the joints within the namespace.
 BONES_ID, JOINTS_ID = 0, 1
+#: Defaults of a skeleton's markers: namespace, RGBA colour, bone line width and joint sphere diameter (m).
+SKELETON_NS = "skeleton"
+SKELETON_COLOR = (0.2, 0.6, 1.0, 1.0)
+LINE_WIDTH_M = 0.02
+JOINT_DIAMETER_M = 0.05
 
 _IDENTITY_POSE = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
 
 
-def _color(backend: Backend, rgba: Sequence[float]) -> Any:
+def marker_color(rgba: Sequence[float]) -> np.ndarray:
+    """A validated RGBA colour (4,), each in [0, 1]."""
     c = finite_array(rgba, (4,), "marker colour")
     if ((c < 0.0) | (c > 1.0)).any():
         raise MalformedMessageError(f"marker colour {c.tolist()} outside [0, 1]")
-    return backend.msg("std_msgs/msg/ColorRGBA", r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3]))
+    return c
 
 
-def skeleton_to_markers(
-    backend: Backend,
-    stamp_ns: int,
-    frame_id: str,
-    positions: Any,
-    parents: Any,
-    ns: str = "skeleton",
-    color: Sequence[float] = (0.2, 0.6, 1.0, 1.0),
-    joint_color: Sequence[float] | None = None,
-    line_width: float = 0.02,
-    joint_diameter: float = 0.05,
-    lifetime_ns: int = 0,
-) -> Any:
-    """MarkerArray: bone lines from each joint to its parent (``parents[j] < 0``: root) and joint spheres.
-
-    ``positions`` (J, 3) in ``frame_id``; colours are RGBA in [0, 1] (``joint_color`` None: ``color``);
-    ``lifetime_ns`` 0 keeps the markers until replaced.
-    """
+def skeleton_lines(positions: Any, parents: Any, line_width: float, joint_diameter: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The validated joint positions (J, 3) and the bones' ends (2 B, 3), each bone from its parent joint to its
+    child (``parents[j] < 0``: root), of a skeleton's markers."""
     p = finite_array(positions, (None, 3), "skeleton positions")
     parents = np.asarray(parents)
     if parents.shape != (len(p),) or parents.dtype.kind not in "iu" or (parents >= len(p)).any():
@@ -56,7 +49,33 @@ def skeleton_to_markers(
     if not (line_width > 0.0 and joint_diameter > 0.0):
         raise MalformedMessageError(f"line_width {line_width} and joint_diameter {joint_diameter} must be positive")
     children = np.flatnonzero(parents >= 0)
-    bone_ends = np.stack([p[parents[children]], p[children]], axis=1).reshape(-1, 3)
+    return p, np.stack([p[parents[children]], p[children]], axis=1).reshape(-1, 3)
+
+
+def _color(backend: Backend, rgba: Sequence[float]) -> Any:
+    c = marker_color(rgba)
+    return backend.msg("std_msgs/msg/ColorRGBA", r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3]))
+
+
+def skeleton_to_markers(
+    backend: Backend,
+    stamp_ns: int,
+    frame_id: str,
+    positions: Any,
+    parents: Any,
+    ns: str = SKELETON_NS,
+    color: Sequence[float] = SKELETON_COLOR,
+    joint_color: Sequence[float] | None = None,
+    line_width: float = LINE_WIDTH_M,
+    joint_diameter: float = JOINT_DIAMETER_M,
+    lifetime_ns: int = 0,
+) -> Any:
+    """MarkerArray: bone lines from each joint to its parent (``parents[j] < 0``: root) and joint spheres.
+
+    ``positions`` (J, 3) in ``frame_id``; colours are RGBA in [0, 1] (``joint_color`` None: ``color``);
+    ``lifetime_ns`` 0 keeps the markers until replaced.
+    """
+    p, bone_ends = skeleton_lines(positions, parents, line_width, joint_diameter)
     header = backend.header(stamp_ns, frame_id)
     lifetime = backend.duration(lifetime_ns)
 

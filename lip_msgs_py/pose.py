@@ -80,7 +80,8 @@ class StampedOdometry:
     twist_cov: np.ndarray  # (6, 6)
 
 
-def _names(names: Sequence[str], what: str) -> tuple[str, ...]:
+def unique_names(names: Sequence[str], what: str) -> tuple[str, ...]:
+    """``names`` as a tuple of strings; MalformedMessageError if one repeats."""
     names = tuple(str(n) for n in names)
     if len(set(names)) != len(names):
         raise MalformedMessageError(f"{what}: duplicate joint names")
@@ -91,7 +92,7 @@ def joint_state_to_msg(
     backend: Backend, stamp_ns: int, frame_id: str, names: Sequence[str], positions: Any
 ) -> Any:
     """``sensor_msgs/msg/JointState`` with ``positions`` (J,) for ``names`` (e.g. the 69 ``<joint>_rz/_ry/_rx``)."""
-    names = _names(names, "JointState")
+    names = unique_names(names, "JointState")
     positions = finite_array(positions, (len(names),), "JointState position")
     return backend.msg(
         "sensor_msgs/msg/JointState",
@@ -104,7 +105,7 @@ def joint_state_to_msg(
 def msg_to_joint_state(msg: Any, names: Sequence[str] | None = None) -> StampedJointState:
     """Names and positions of a JointState, reordered to ``names`` if given (all must be present)."""
     stamp_ns, frame_id = read_header(msg)
-    have = _names(msg.name, "JointState")
+    have = unique_names(msg.name, "JointState")
     positions = finite_array(msg.position, (len(have),), "JointState position")
     if names is None:
         return StampedJointState(stamp_ns, frame_id, have, positions)

@@ -103,7 +103,7 @@ from lip_ros.nodes.base import (
 )
 from lip_ros.nodes.hsc4d import FUSED_ODOMETRY_QOS, HSC4D_PARAMS_FILE
 from lip_ros.nodes.hsc4d.trajectory import TrajectoryNode
-from lip_ros.outputs import pose_messages
+from lip_ros.outputs import pose_cdr
 
 __all__ = ["BodyNode", "main"]
 
@@ -353,9 +353,9 @@ class BodyNode(GraphNode):
             moved = bent_legs(moved_body(pose, T, T_opt), self.body.skeleton, legs[k])
             self._opt_odometry.publish(odometry_to_msg(self.backend, stamp_ns, frame_id, PELVIS_FRAME, t[k],
                                                        matrix_to_quat(R[k])))
-            for topic, (_, msg) in pose_messages(self.backend, OPTIMISED_TOPICS, self.body.skeleton, stamp_ns,
-                                                 frame_id, moved.local_rot, moved.glob_rot, moved.joints).items():
-                self._opt_out[topic].publish(msg)
+            for topic, raw in pose_cdr(OPTIMISED_TOPICS, self.body.skeleton, stamp_ns, frame_id, moved.local_rot,
+                                       moved.glob_rot, moved.joints).items():
+                self._opt_out[topic].publish(raw)
         self._optimised += len(t)
         del self._window[: len(t)]
 
@@ -474,9 +474,9 @@ class BodyNode(GraphNode):
         if reason:
             self._degraded += 1
             self.get_logger().info(f"pose at {stamp_ns} with held suit data: {reason}", throttle_duration_sec=2.0)
-        for topic, (_, msg) in pose_messages(self.backend, HSC4D_TOPICS, self.body.skeleton, stamp_ns, frame_id,
-                                             pose.local_rot, pose.glob_rot, pose.joints).items():
-            self._out[topic].publish(msg)
+        for topic, raw in pose_cdr(HSC4D_TOPICS, self.body.skeleton, stamp_ns, frame_id, pose.local_rot,
+                                   pose.glob_rot, pose.joints).items():
+            self._out[topic].publish(raw)
         self.count_frame("pose")
         self._latency.add(time.monotonic() - fused.received)
         if self._optimiser is not None:

@@ -59,7 +59,7 @@ from lip_ros.nodes.base import (
 from lip_ros.nodes.lip import LIP_PARAMS_FILE
 from lip_ros.nodes.lip.calibration import CalibrationNode
 from lip_ros.nodes.lip.ground import GROUND_PARAM, subscribe_ground
-from lip_ros.outputs import pose_messages
+from lip_ros.outputs import pose_cdr
 
 __all__ = ["PoseNode", "main"]
 
@@ -176,12 +176,12 @@ class PoseNode(GraphNode):
         pose, _, _ = self.stage.estimate(stamp_ns, points, rot, acc)
         self._say_interleave("measured from their stamps")  # where the stage set the model for the measured rate
         frame_id = self.params["frame_id"] or cloud_frame
-        messages = pose_messages(self.backend, LIP_TOPICS, self.stage.skeleton, stamp_ns, frame_id, pose.local_rot,
-                                 pose.glob_rot, pose.joint_pos)
-        for topic, (_, msg) in messages.items():
-            self._out[topic].publish(msg)
+        messages = pose_cdr(LIP_TOPICS, self.stage.skeleton, stamp_ns, frame_id, pose.local_rot, pose.glob_rot,
+                            pose.joint_pos)
+        for topic, raw in messages.items():
+            self._out[topic].publish(raw)
         if self._hri_pub is not None:
-            self._hri_pub.publish(messages[LIP_TOPICS.joint_states][1])
+            self._hri_pub.publish(messages[LIP_TOPICS.joint_states])
         if self._tf_pub is not None:
             children = [self.params["tf_child_frame"]] if self.params["publish_tf"] else []
             children += [self._hri_frame] if self._hri_frame else []
