@@ -14,9 +14,11 @@ message objects costs more than the work on them:
 
 Both return None for what they leave to the rosbags deserialiser and
 ``lip_msgs_py`` (big-endian CDR, unexpected sizes, and for Imu any message that
-is not plain: a component not provided, a value not finite, a stamp or a
+``msg_to_imu`` would refuse: a provided value not finite, a stamp or a
 quaternion norm out of range), so that every message, well-formed or not, ends
-up as it would through rosbags.
+up as it would through rosbags. An Imu component not provided (REP-145:
+covariance[0] = -1, e.g. the gyro of the LIP graph's bones) is NaN, as
+``msg_to_imu`` gives it.
 """
 
 from __future__ import annotations
@@ -46,6 +48,9 @@ _IMU_VALUES = 37  # orientation (4) + covariance (9), angular velocity (3) + (9)
 _IMU_BYTES = 8 * _IMU_VALUES
 _NAN_VALUES = np.full(_IMU_VALUES, np.nan).tobytes()  # stands in for a message that is not plain
 _NOT_PROVIDED = -1.0  # REP-145 covariance[0]
+#: The Imu's components among the 37 values: (the values, their covariance) of the orientation, the angular
+#: velocity and the linear acceleration.
+_IMU_PARTS = ((slice(0, 4), slice(4, 13)), (slice(13, 16), slice(16, 25)), (slice(25, 28), slice(28, 37)))
 
 
 @dataclass(frozen=True)
@@ -146,18 +151,26 @@ def imu_samples(datas: Sequence[bytes | memoryview]) -> list[ImuSample | None]:
     heads = [_imu_head(v) for v in views]
     values = np.frombuffer(bytearray().join(v[h[2] : h[2] + _IMU_BYTES] if h else _NAN_VALUES
                                             for v, h in zip(views, heads, strict=True)), "<f8").reshape(-1, _IMU_VALUES)
-    quat, gyro, accel = values[:, 0:4], values[:, 13:16], values[:, 25:28]
-    covariances = values[:, 4:13], values[:, 16:25], values[:, 28:37]
+    # per component (orientation, angular velocity, linear acceleration): its values and its covariance
+    parts = [(values[:, v], values[:, c]) for v, c in _IMU_PARTS]
+    provided = np.stack([cov[:, 0] != _NOT_PROVIDED for _, cov in parts], axis=1)  # (N, 3)
+    finite = np.stack([np.isfinite(v).all(axis=1) & np.isfinite(c).all(axis=1) for v, c in parts], axis=1)
+    quat = parts[0][0]
     norm = np.linalg.norm(quat, axis=-1, keepdims=True)  # as lip_msgs_py's unit_quaternions, row by row
-    plain = np.isfinite(values).all(axis=1) & (np.abs(norm[:, 0] - 1.0) <= QUAT_UNIT_TOLERANCE)
-    for cov in covariances:
-        plain &= cov[:, 0] != _NOT_PROVIDED
-    unit = quat / np.where(plain[:, None], norm, 1.0)
-    return [
-        ImuSample(head[0], head[1], unit[k], gyro[k], accel[k], *(cov[k].reshape(3, 3) for cov in covariances))
-        if ok else None
-        for k, (head, ok) in enumerate(zip(heads, plain.tolist(), strict=True))
-    ]
+    unit_ok = np.abs(norm[:, 0] - 1.0) <= QUAT_UNIT_TOLERANCE
+    plain = (finite | ~provided).all(axis=1) & (unit_ok | ~provided[:, 0])
+    unit = quat / np.where((plain & provided[:, 0])[:, None], norm, 1.0)
+    absent = np.full((3, 3), np.nan)
+    out: list[ImuSample | None] = []
+    for k, (head, ok) in enumerate(zip(heads, plain.tolist(), strict=True)):
+        if not ok:
+            out.append(None)
+            continue
+        comps = [(unit[k] if i == 0 else v[k], c[k].reshape(3, 3)) if provided[k, i]
+                 else (np.full(len(v[k]), np.nan), absent.copy()) for i, (v, c) in enumerate(parts)]
+        out.append(ImuSample(head[0], head[1], comps[0][0], comps[1][0], comps[2][0],
+                             comps[0][1], comps[1][1], comps[2][1]))
+    return out
 
 
 def cdr_stamp(data: bytes | memoryview) -> int:

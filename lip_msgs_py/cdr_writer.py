@@ -1,4 +1,4 @@
-"""The pose outputs' messages written straight to little-endian CDR bytes, without message objects.
+"""The pose outputs' messages (and Imu) written straight to little-endian CDR bytes, without message objects.
 
 A live node publishes these bytes as they are (rclpy's ``Publisher.publish``
 takes serialized messages): building the same messages as rclpy objects, field
@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from lip_msgs_py._validate import finite_array, unit_quaternions
+from lip_msgs_py.imu import ImuSample, imu_values
 from lip_msgs_py.markers import (
     ADD,
     BONES_ID,
@@ -37,7 +38,7 @@ from lip_msgs_py.markers import (
 from lip_msgs_py.pose import unique_names
 from lip_msgs_py.stamps import ns_to_sec_nanosec
 
-__all__ = ["pose_stamped_cdr", "pose_array_cdr", "joint_state_cdr", "skeleton_markers_cdr"]
+__all__ = ["pose_stamped_cdr", "pose_array_cdr", "joint_state_cdr", "skeleton_markers_cdr", "imu_cdr"]
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR_LE, no options
 _U32 = struct.Struct("<I")
@@ -175,4 +176,12 @@ def skeleton_markers_cdr(
         cdr.string("")  # mesh_file (visualization_msgs/MeshFile): filename, data
         cdr.u32(0)
         cdr.byte(0)  # mesh_use_embedded_materials
+    return cdr.bytes()
+
+
+def imu_cdr(sample: ImuSample) -> bytes:
+    """``sensor_msgs/msg/Imu`` of a sample, as :func:`lip_msgs_py.imu_to_msg` builds it, as CDR."""
+    cdr = _Cdr()
+    cdr.header(sample.stamp_ns, sample.frame_id)
+    cdr.float64s(imu_values(sample))
     return cdr.bytes()

@@ -17,7 +17,7 @@ from lip_msgs_py.backend import Backend
 from lip_msgs_py.geometry import quat_of, quaternion_msg, vector3_msg, xyz_of
 from lip_msgs_py.stamps import read_header
 
-__all__ = ["ImuSample", "imu_sample", "imu_to_msg", "msg_to_imu"]
+__all__ = ["ImuSample", "imu_sample", "imu_to_msg", "msg_to_imu", "imu_values"]
 
 _NOT_PROVIDED = -1.0
 
@@ -103,16 +103,29 @@ def _covariance_field(provided: bool, cov: np.ndarray) -> np.ndarray:
     return cov
 
 
+def imu_values(sample: ImuSample) -> np.ndarray:
+    """The 37 numbers of a sample's Imu message in their order: orientation (xyzw) and its covariance, angular
+    velocity and its covariance, linear acceleration and its covariance; a component not provided is zeros with
+    covariance[0] = -1 (REP-145)."""
+    return np.concatenate([
+        part
+        for provided, values, cov in ((sample.has_orientation, sample.quat, sample.quat_cov),
+                                      (sample.has_gyro, sample.gyro, sample.gyro_cov),
+                                      (sample.has_accel, sample.accel, sample.accel_cov))
+        for part in ((values if provided else np.zeros(len(values))), _covariance_field(provided, cov))
+    ])
+
+
 def imu_to_msg(backend: Backend, sample: ImuSample) -> Any:
     """``sensor_msgs/msg/Imu`` of a sample; missing components are zeros with covariance[0] = -1."""
-    zeros = np.zeros(4)
+    v = imu_values(sample)
     return backend.msg(
         "sensor_msgs/msg/Imu",
         header=backend.header(sample.stamp_ns, sample.frame_id),
-        orientation=quaternion_msg(backend, sample.quat if sample.has_orientation else zeros),
-        orientation_covariance=_covariance_field(sample.has_orientation, sample.quat_cov),
-        angular_velocity=vector3_msg(backend, sample.gyro if sample.has_gyro else zeros),
-        angular_velocity_covariance=_covariance_field(sample.has_gyro, sample.gyro_cov),
-        linear_acceleration=vector3_msg(backend, sample.accel if sample.has_accel else zeros),
-        linear_acceleration_covariance=_covariance_field(sample.has_accel, sample.accel_cov),
+        orientation=quaternion_msg(backend, v[0:4]),
+        orientation_covariance=v[4:13],
+        angular_velocity=vector3_msg(backend, v[13:16]),
+        angular_velocity_covariance=v[16:25],
+        linear_acceleration=vector3_msg(backend, v[25:28]),
+        linear_acceleration_covariance=v[28:37],
     )

@@ -40,17 +40,22 @@ from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, Param
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
+from sensor_msgs.msg import Imu
 
 from lip_msgs_py import (
     DiagnosticLevel,
+    ImuSample,
     MalformedMessageError,
     RclpyBackend,
     diagnostic_array_to_msg,
     diagnostic_status_to_msg,
+    msg_to_imu,
     rclpy_message_class,
 )
+from lip_msgs_py.cdr import imu_samples
 from lip_ros.core.clock import SteppingClock
 from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import use_lip_dds_profile
@@ -60,7 +65,7 @@ __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "non_negativ
            "LatencyWindow", "RELIABLE", "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input",
            "LATCHED", "POLL_PERIOD_S", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals",
            "LocalTopics", "BetweenNodesPublisher", "DIRECT_INPUTS_PARAM", "tf_publisher", "rejection_reason",
-           "SKIPPED", "stop_on_signals"]
+           "read_imu", "SKIPPED", "stop_on_signals"]
 
 #: How ``GraphNode.count_frame`` names a frame that ended without a pose.
 SKIPPED = "skipped"
@@ -524,6 +529,19 @@ class GraphNode(Node):
         statuses.append(diagnostic_status_to_msg(self.backend, int(level), f"{self.get_name()}: frames", message,
                                                  values=values))
         self._diag_pub.publish(diagnostic_array_to_msg(self.backend, now, statuses))
+
+
+def read_imu(data: bytes) -> ImuSample:
+    """The sample of a sensor_msgs/Imu's CDR bytes: read in place (:func:`lip_msgs_py.cdr.imu_samples`), or where
+    that leaves it (not plain little-endian CDR, a value it would refuse) deserialised and read in full;
+    MalformedMessageError if it cannot be read."""
+    sample = imu_samples([data])[0]
+    if sample is not None:
+        return sample
+    try:
+        return msg_to_imu(deserialize_message(data, Imu))
+    except RuntimeError as exc:
+        raise MalformedMessageError(f"Imu CDR: {exc}") from exc
 
 
 def rejection_reason(exc: Exception) -> str:

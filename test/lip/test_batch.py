@@ -16,7 +16,7 @@ from helpers import DEMO_BAG
 from mcap.reader import make_reader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from lip_msgs_py import cloud_to_array, msg_to_imu, read_header
+from lip_msgs_py import MalformedMessageError, cloud_to_array, msg_to_imu, read_header
 from lip_msgs_py.cdr import cloud_msg, imu_samples
 from lip_ros.bagio import BagError, bag_span, bag_topics, jazzy_typestore, mcap_writer, read_raw
 from lip_ros.bagstream import stream_raw
@@ -191,16 +191,26 @@ def test_cdr_decoders_match_rosbags_and_lip_msgs_py():
             assert read_header(fast) == read_header(msg)
             got, want = cloud_to_array(fast), cloud_to_array(msg)
             assert got.dtype == want.dtype and got.shape == want.shape and got.tobytes() == want.tobytes()
+    # components not provided (REP-145), one or several: NaN, as msg_to_imu gives them
+    imu = store.deserialize_cdr(imu_raw[0], "sensor_msgs/msg/Imu")
+    for covs in (("orientation_covariance",), ("angular_velocity_covariance",), ("linear_acceleration_covariance",),
+                 ("angular_velocity_covariance", "linear_acceleration_covariance")):
+        msg = imu
+        for cov in covs:
+            msg = _not_provided(msg, cov)
+        imu_raw.append(store.serialize_cdr(msg, "sensor_msgs/msg/Imu"))
+        imu_want.append(msg_to_imu(msg))
+    assert any(np.isnan(want.quat).all() for want in imu_want) and any(np.isnan(w.accel).all() for w in imu_want)
     for got, want in zip(imu_samples(imu_raw), imu_want, strict=True):
         assert (got.stamp_ns, got.frame_id) == (want.stamp_ns, want.frame_id)
-        assert all(np.array_equal(getattr(got, k), getattr(want, k)) for k in IMU_FIELDS)  # bit for bit
-    # what they leave to rosbags and msg_to_imu
-    imu = store.deserialize_cdr(imu_raw[0], "sensor_msgs/msg/Imu")
+        assert all(np.array_equal(getattr(got, k), getattr(want, k), equal_nan=True) for k in IMU_FIELDS)  # bitwise
+    # what they leave to rosbags and msg_to_imu: other byte orders and sizes, values msg_to_imu refuses
+    nan_gyro = dataclasses.replace(imu, angular_velocity=dataclasses.replace(imu.angular_velocity, x=np.nan))
     odd = [store.serialize_cdr(imu, "sensor_msgs/msg/Imu", little_endian=False), imu_raw[0][:-8],
-           imu_raw[0] + bytes(8)]
-    odd += [store.serialize_cdr(_not_provided(imu, cov), "sensor_msgs/msg/Imu")
-            for cov in ("orientation_covariance", "linear_acceleration_covariance")]
+           imu_raw[0] + bytes(8), store.serialize_cdr(nan_gyro, "sensor_msgs/msg/Imu")]
     assert imu_samples(odd) == [None] * len(odd)
+    with pytest.raises(MalformedMessageError):
+        msg_to_imu(nan_gyro)
     cloud = next(m.data for m in read_raw(DEMO_BAG, [LIDAR_TOPIC]))
     big = store.serialize_cdr(store.deserialize_cdr(cloud, "sensor_msgs/msg/PointCloud2"),
                               "sensor_msgs/msg/PointCloud2", little_endian=False)

@@ -15,6 +15,8 @@ from lip_msgs_py import (
     MalformedMessageError,
     RclpyBackend,
     RosbagsBackend,
+    imu_sample,
+    imu_to_msg,
     joint_state_to_msg,
     msg_to_joint_state,
     msg_to_pose_array,
@@ -23,7 +25,8 @@ from lip_msgs_py import (
     rclpy_message_class,
     skeleton_to_markers,
 )
-from lip_msgs_py.cdr_writer import joint_state_cdr, pose_array_cdr, pose_stamped_cdr, skeleton_markers_cdr
+from lip_msgs_py.cdr import imu_samples
+from lip_msgs_py.cdr_writer import imu_cdr, joint_state_cdr, pose_array_cdr, pose_stamped_cdr, skeleton_markers_cdr
 from lip_ros.core.skeleton import forward_kinematics, joint_state_names, load_skeleton
 from lip_ros.lip.sensors import LIP_TOPICS
 from lip_ros.outputs import GT_TOPICS, pose_cdr, pose_messages
@@ -106,3 +109,16 @@ def test_pose_cdr_gives_pose_messages_as_bytes(topics):
     for topic, data in raw.items():
         _same_message(data, pose_messages(RCLPY, topics, *args)[topic][0],
                       lambda b, topic=topic: pose_messages(b, topics, *args)[topic][1])
+
+
+@pytest.mark.parametrize("given", [("quat", "gyro", "accel"), ("quat", "accel"), ("quat",), ("accel",)])
+def test_imu_decodes_to_the_object_writers_message_and_reads_back(given):
+    values = {"quat": _quats(1)[0], "gyro": RNG.normal(size=3), "accel": RNG.normal(size=3)}
+    covs = {"quat_cov": np.diag([0.01, 0.02, 0.03]), "accel_cov": np.eye(3) * 0.5}
+    sample = imu_sample(1_700_000_000_000_000_001, "left_wrist", **{k: values[k] for k in given},
+                        **{k: v for k, v in covs.items() if k[:-4] in given})
+    raw = imu_cdr(sample)
+    _same_message(raw, "sensor_msgs/msg/Imu", lambda b: imu_to_msg(b, sample))
+    back = imu_samples([raw])[0]  # the live nodes' reader of these bytes
+    for k in ("quat", "gyro", "accel", "quat_cov", "gyro_cov", "accel_cov"):
+        np.testing.assert_array_equal(getattr(back, k), getattr(sample, k))

@@ -235,6 +235,8 @@ class PerformerSegmenter:
             None if cfg.ground_plane is None else GroundPlane.from_coefficients(cfg.ground_plane)
         )
         self.background: BackgroundModel | None = None
+        # the last frame's range image and performer mask, which the background learns from before the next frame
+        self._to_learn: tuple[np.ndarray, np.ndarray] | None = None
         self.layout: ScanLayout | None = None  # where the rows and columns look, fitted to the first frame
         self._row_shift: np.ndarray | None = None  # a staggered cloud's rows' shifts (ScanLayout.row_shift)
         self.performer: Track | None = None
@@ -273,7 +275,12 @@ class PerformerSegmenter:
     # ---------------------------------------------------------------- frames
 
     def process(self, points: np.ndarray, stamp_ns: int) -> SegmentationResult:
-        """Segment one organized frame (H, W) with fields x, y, z, t, range, stamped ``stamp_ns`` (int ns)."""
+        """Segment one organized frame (H, W) with fields x, y, z, t, range, stamped ``stamp_ns`` (int ns).
+
+        The background learns from the frame afterwards: in :meth:`learn`, which a live caller runs once it has
+        passed the result on (about a millisecond of a 1024-column frame off its latency), or else at the start
+        of the next frame; either way before the next frame, with the same results."""
+        self.learn()
         shape = points.shape if isinstance(points, np.ndarray) and points.ndim == 2 else (0, 0)
         stamp = int(stamp_ns) if isinstance(stamp_ns, (int, np.integer)) and not isinstance(stamp_ns, bool) else 0
         if isinstance(points, np.ndarray) and points.size == 0:
@@ -294,6 +301,12 @@ class PerformerSegmenter:
         if self._row_shift is not None:  # a staggered cloud: its rows lined up, and the result put back
             return self._restaggered(self._segment(destagger(points, self._row_shift), stamp, shape))
         return self._segment(points, stamp, shape)
+
+    def learn(self) -> None:
+        """Update the background with the last frame segmented (:meth:`process`), if not done yet."""
+        if self._to_learn is not None:
+            self.background.update(*self._to_learn)
+            self._to_learn = None
 
     def _shift_time(self, delta_ns: int) -> None:
         """The clock stepped by ``delta_ns``: every stamp remembered moves with it, as if the frame came one frame
@@ -340,7 +353,7 @@ class PerformerSegmenter:
             result = self._acquire(frame, stamp)
         else:
             result = self._track(frame, stamp)
-        self.background.update(frame.range_m, result.mask)
+        self._to_learn = (frame.range_m, result.mask)
         if self._last_stamp_ns is not None:
             self._period_ns = min(stamp - self._last_stamp_ns, _PERIOD_NS)
         self._last_stamp_ns = stamp

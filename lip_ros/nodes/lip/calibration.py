@@ -33,7 +33,6 @@ from typing import Any
 
 import numpy as np
 import yaml
-from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -43,11 +42,9 @@ from lip_msgs_py import (
     MalformedMessageError,
     cloud_to_xyz,
     imu_sample,
-    imu_to_msg,
-    msg_to_imu,
     read_header,
 )
-from lip_msgs_py.cdr import imu_samples
+from lip_msgs_py.cdr_writer import imu_cdr
 from lip_ros.core.imu_sync import SyncConfig
 from lip_ros.core.rotations import matrix_to_quat
 from lip_ros.core.sensor_monitor import odd_delays
@@ -67,6 +64,7 @@ from lip_ros.nodes.base import (
     non_negative,
     numbers,
     positive,
+    read_imu,
     run_nodes,
 )
 from lip_ros.nodes.lip import CALIBRATION_NODE_NAME, DOT_LATENCY_VALUE, LIP_PARAMS_FILE
@@ -168,12 +166,7 @@ class CalibrationNode(GraphNode):
         self.stage.level = level
 
     def _on_imu(self, name: str, data: bytes) -> int:
-        sample = imu_samples([data])[0]
-        if sample is None:  # not plain little-endian CDR, or a component not provided: read in full
-            try:
-                sample = msg_to_imu(deserialize_message(data, Imu))
-            except RuntimeError as exc:
-                raise MalformedMessageError(f"Imu CDR: {exc}") from exc
+        sample = read_imu(data)
         reason = self.stage.add_imu(name, sample)
         if reason is not None:
             raise MalformedMessageError(reason)
@@ -194,9 +187,8 @@ class CalibrationNode(GraphNode):
                 frame_id, received = f.tag
                 quats = matrix_to_quat(f.bone_rot)
                 held = f.held
-                bones = [imu_to_msg(self.backend, imu_sample(f.pose_stamp_ns, frame_id, quat=q,
-                                                             accel=None if h else acc))  # held: not provided
-                         for q, acc, h in zip(quats, f.free_acc, held)]
+                bones = [imu_cdr(imu_sample(f.pose_stamp_ns, frame_id, quat=q, accel=None if h else acc))  # held:
+                         for q, acc, h in zip(quats, f.free_acc, held)]  # its acceleration not provided
                 self._latency.add(time.monotonic() - received)  # before the publication (see segmentation_node)
                 for pub, bone in zip(self._bone_pubs, bones):
                     pub.publish(bone)

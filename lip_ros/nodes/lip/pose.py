@@ -31,7 +31,6 @@ from sensor_msgs.msg import Imu, PointCloud2
 from lip_msgs_py import (
     DiagnosticLevel,
     cloud_to_xyz,
-    msg_to_imu,
     rclpy_message_class,
     read_header,
     tf_message,
@@ -53,6 +52,7 @@ from lip_ros.nodes.base import (
     Param,
     ParameterError,
     positive,
+    read_imu,
     run_nodes,
     tf_publisher,
 )
@@ -127,9 +127,9 @@ class PoseNode(GraphNode):
         subscribe_ground(self, p["ground_topic"], self._on_ground)
         self.add_input("performer", p["performer_topic"], PointCloud2, p["lidar_rate_hz"],
                        lambda msg: self._on_input(_POINTS, msg), from_graph=True)
-        for name, topic in zip(IMU_NAMES, p["bone_topics"]):
+        for name, topic in zip(IMU_NAMES, p["bone_topics"]):  # raw: calibration_node publishes their CDR bytes
             self.add_input(f"bone {name}", topic, Imu, p["lidar_rate_hz"],
-                           lambda msg, name=name: self._on_input(name, msg), from_graph=True)
+                           lambda data, name=name: self._on_input(name, data), raw=True, from_graph=True)
         self.get_logger().info(f"ready; weights {p['weights'] or '(shipped)'}")
 
     def _say_interleave(self, source: str, rate_hz: float | None = None) -> None:
@@ -148,12 +148,13 @@ class PoseNode(GraphNode):
         self.stage.level = level
 
     def _on_input(self, name: str, msg: Any) -> int:
-        stamp_ns, frame_id = read_header(msg)
+        """A performer cloud (message) or a bone (Imu CDR bytes) of a frame; the frame's pose once it has all."""
         if name == _POINTS:
+            stamp_ns, frame_id = read_header(msg)
             item = (cloud_to_xyz(msg), frame_id)
         else:
-            sample = msg_to_imu(msg)
-            item = (quat_to_matrix(sample.quat), sample.accel)
+            sample = read_imu(msg)
+            stamp_ns, item = sample.stamp_ns, (quat_to_matrix(sample.quat), sample.accel)
         done, dropped = self._joiner.add(name, stamp_ns, item)
         for incomplete in dropped:
             self._give_up(incomplete)

@@ -122,11 +122,13 @@ class SegmentationNode(GraphNode):
         self._last_status = f"{seg.status.value}: {seg.reason}" if seg.reason else seg.status.value
         if seg.status != SegmentationStatus.OK:
             self.count_frame(f"skipped: {seg.status.value}", f"{stamp_ns}: {self._last_status}")
+            self._segmenter.learn()
             return stamp_ns
         if self._arrivals is not None:
             self._arrivals.mark(seg.pose_stamp_ns, received)
         self._latency.add(time.monotonic() - received)  # before publishing, which runs the rest of a composed graph
         self._pub.publish(xyz_to_cloud(self.backend, seg.points, seg.pose_stamp_ns, frame_id))
+        self._segmenter.learn()  # the background, once the frame is out
         if self._performer_file is not None and received - self._saved_at >= 1.0:
             self._save_position(seg.position, seg.pose_stamp_ns)
             self._saved_at = received
