@@ -44,7 +44,7 @@ MARKS = (
     ("segmented", "lip_ros.lip.segmentation.segmenter:PerformerSegmenter", "process", "after"),
     ("to calibration", "lip_ros.nodes.lip.calibration:CalibrationNode", "_on_performer", "before"),
     ("DOT samples taken", "lip_ros.nodes.base:GraphNode", "take_polled", "after"),
-    ("bones interpolated", "lip_ros.lip.stages:ImuStage", "add_frame", "after"),
+    ("bones interpolated", "lip_ros.lip.stages:ImuStage", "_process", "after"),
     ("to pose", "lip_ros.nodes.lip.pose:PoseNode", "_estimate", "before"),
     ("pose estimated", "lip_ros.lip.stages:PoseStage", "estimate", "after"),
     ("outputs published", "lip_ros.nodes.lip.pose:PoseNode", "_estimate", "after"),
