@@ -25,6 +25,7 @@ from lip_msgs_py.imu import ImuSample, imu_values
 from lip_msgs_py.markers import (
     ADD,
     BONES_ID,
+    IDENTITY_POSE,
     JOINT_DIAMETER_M,
     JOINTS_ID,
     LINE_LIST,
@@ -44,7 +45,6 @@ _ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR_LE, no options
 _U32 = struct.Struct("<I")
 _I32x3 = struct.Struct("<iii")
 _STAMP = struct.Struct("<iI")
-_IDENTITY_POSE = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])  # position, then the xyzw quaternion
 
 
 class _Cdr:
@@ -159,7 +159,7 @@ def skeleton_markers_cdr(
         cdr.header(stamp_ns, frame_id)
         cdr.string(str(ns))
         cdr.pack(_I32x3, marker_id, kind, ADD)
-        cdr.float64s(np.concatenate([_IDENTITY_POSE, np.full(3, float(scale))]))  # pose, scale
+        cdr.float64s(np.concatenate([*IDENTITY_POSE, np.full(3, float(scale))]))  # pose, scale
         cdr.buf += marker_color(rgba).astype("<f4").tobytes()  # 4-aligned after the float64s
         cdr.pack(_STAMP, *ns_to_sec_nanosec(lifetime_ns))
         cdr.byte(0)  # frame_locked

@@ -13,7 +13,7 @@ from lip_msgs_py.errors import MalformedMessageError
 from lip_msgs_py.geometry import point_msg, pose_msg
 
 __all__ = ["LINE_LIST", "SPHERE_LIST", "ADD", "BONES_ID", "JOINTS_ID", "SKELETON_NS", "SKELETON_COLOR", "LINE_WIDTH_M",
-           "JOINT_DIAMETER_M", "skeleton_to_markers", "marker_color", "skeleton_lines"]
+           "JOINT_DIAMETER_M", "IDENTITY_POSE", "skeleton_to_markers", "marker_color", "skeleton_lines"]
 
 #: visualization_msgs/Marker constants used here.
 LINE_LIST, SPHERE_LIST, ADD = 5, 7, 0
@@ -25,7 +25,8 @@ SKELETON_COLOR = (0.2, 0.6, 1.0, 1.0)
 LINE_WIDTH_M = 0.02
 JOINT_DIAMETER_M = 0.05
 
-_IDENTITY_POSE = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+#: The markers' pose: their points are in the header's frame as they are (position, xyzw quaternion).
+IDENTITY_POSE = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
 
 
 def marker_color(rgba: Sequence[float]) -> np.ndarray:
@@ -87,7 +88,7 @@ def skeleton_to_markers(
             id=marker_id,
             type=kind,
             action=ADD,
-            pose=pose_msg(backend, *_IDENTITY_POSE),
+            pose=pose_msg(backend, *IDENTITY_POSE),
             scale=backend.msg("geometry_msgs/msg/Vector3", x=float(scale), y=float(scale), z=float(scale)),
             color=_color(backend, rgba),
             lifetime=lifetime,
