@@ -24,17 +24,12 @@ from lip_msgs_py._validate import finite_array, unit_quaternions
 from lip_msgs_py.imu import ImuSample, imu_values
 from lip_msgs_py.markers import (
     ADD,
-    BONES_ID,
     IDENTITY_POSE,
     JOINT_DIAMETER_M,
-    JOINTS_ID,
-    LINE_LIST,
     LINE_WIDTH_M,
     SKELETON_COLOR,
     SKELETON_NS,
-    SPHERE_LIST,
-    marker_color,
-    skeleton_lines,
+    skeleton_marker_specs,
 )
 from lip_msgs_py.pose import unique_names
 from lip_msgs_py.stamps import ns_to_sec_nanosec
@@ -150,21 +145,19 @@ def skeleton_markers_cdr(
 ) -> bytes:
     """The ``visualization_msgs/msg/MarkerArray`` of :func:`lip_msgs_py.skeleton_to_markers` (the same
     arguments), as CDR."""
-    p, bone_ends = skeleton_lines(positions, parents, line_width, joint_diameter)
+    specs = skeleton_marker_specs(positions, parents, color, joint_color, line_width, joint_diameter)
     cdr = _Cdr()
-    cdr.u32(2)
-    for marker_id, kind, scale, rgba, points in (
-            (BONES_ID, LINE_LIST, line_width, color, bone_ends),
-            (JOINTS_ID, SPHERE_LIST, joint_diameter, color if joint_color is None else joint_color, p)):
+    cdr.u32(len(specs))
+    for m in specs:
         cdr.header(stamp_ns, frame_id)
         cdr.string(str(ns))
-        cdr.pack(_I32x3, marker_id, kind, ADD)
-        cdr.float64s(np.concatenate([*IDENTITY_POSE, np.full(3, float(scale))]))  # pose, scale
-        cdr.buf += marker_color(rgba).astype("<f4").tobytes()  # 4-aligned after the float64s
+        cdr.pack(_I32x3, m.marker_id, m.kind, ADD)
+        cdr.float64s(np.concatenate([*IDENTITY_POSE, np.full(3, m.scale)]))  # pose, scale
+        cdr.buf += m.rgba.astype("<f4").tobytes()  # 4-aligned after the float64s
         cdr.pack(_STAMP, *ns_to_sec_nanosec(lifetime_ns))
         cdr.byte(0)  # frame_locked
-        cdr.u32(len(points))
-        cdr.float64s(points)
+        cdr.u32(len(m.points))
+        cdr.float64s(m.points)
         cdr.u32(0)  # colors
         cdr.string("")  # texture_resource
         cdr.header(0, "")  # texture (sensor_msgs/CompressedImage): header, format, data
