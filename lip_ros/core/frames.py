@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lip_ros.core.rotations import rot_z
+
 #: Standard gravity (m/s^2), as the contract states (+9.81 up at rest).
 GRAVITY = 9.81
 
@@ -25,9 +27,11 @@ def level_rotation(up: np.ndarray) -> np.ndarray:
     return np.eye(3) + k + k @ k / (1.0 + c)  # Rodrigues for the rotation taking z onto up
 
 
-def hip_lidar_rotation(tilt_up_deg: float) -> np.ndarray:
+def hip_lidar_rotation(tilt_up_deg: float, spin_deg: float = 0.0) -> np.ndarray:
     """R_M_L (3, 3): a LiDAR worn on the hip, in the pelvis frame M (the HSC4D rig): its +x where the body faces,
-    its z up the body, then tilted up by ``tilt_up_deg`` (about its own y axis: +x rises)."""
+    its z up the body, then tilted up by ``tilt_up_deg`` (about its own y axis: +x rises), then turned by
+    ``spin_deg`` about its own z, the spin axis (where its +x, an Ouster's connector and column 0, points: a
+    sensor worn with its connector down the leg or to the back is the same tilt with another spin)."""
     t = np.radians(tilt_up_deg)
     c, s = np.cos(t), np.sin(t)
-    return R_L_M_FACING_X.T @ np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+    return R_L_M_FACING_X.T @ np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]]) @ rot_z(np.radians(spin_deg))

@@ -144,7 +144,7 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                 scene: SceneOptimisationConfig | None = None) -> TrajectoryRun:
     """Play ``capture`` through a :class:`CaptureRefiner` (``progress(k, n)`` after each sweep), pose the body on
     each method's trajectory and optimise the live one and refine the capture with ``scene``; :class:`CaptureLost`
-    if a sweep was not posed."""
+    if a sweep was not posed or the capture cannot be refined."""
     scene = scene or SceneOptimisationConfig()
     refiner = CaptureRefiner(RefinementConfig(trajectory=config or TrajectoryConfig(), scene=scene))
     pipeline = refiner.pipeline
@@ -173,7 +173,10 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
     live = refiner.record
     t_s = (live.stamps_ns - capture.epoch_ns) * 1e-9
     truth = capture.truth(t_s)
-    refined = refiner.refine()
+    try:
+        refined = refiner.refine()
+    except ValueError as error:  # no ground mapped under the feet anywhere: a capture the method lost
+        raise CaptureLost(f"capture {capture.config.seed}: no refinement: {error}") from error
     kiss_poses = np.array([lidar_only[ns] for ns in live.sweeps_ns])
     anchor = live.lidar[0] @ np.linalg.inv(kiss_poses[0])  # T_map_O of kiss-icp's odometry frame
     T_L_M = np.linalg.inv(live.lidar) @ live.lidar_pelvis  # the mounting as each sweep had it

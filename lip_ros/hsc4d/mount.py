@@ -35,16 +35,19 @@ __all__ = ["HipMountPrior", "rotation_between", "levelled_mount_rotation", "Moun
 
 @dataclass(frozen=True)
 class HipMountPrior:
-    """The nominal mounting: lever arm (m, the sensor's origin in the pelvis frame M: x left, y up, z forward)
-    and tilt up (deg) of a sensor looking where the body faces."""
+    """The nominal mounting: lever arm (m, the sensor's origin in the pelvis frame M: x left, y up, z forward),
+    tilt up (deg) of a sensor looking where the body faces, and its spin about its own axis (deg: where its +x
+    points, 0 where the body faces; :func:`lip_ros.core.frames.hip_lidar_rotation`). Levelling and walking
+    correct the tilt and the turn about the body's axis by a few degrees, not a spin set wrong by tens."""
 
     lever_m: tuple[float, float, float] = (-0.15, 0.0, -0.1)
     tilt_up_deg: float = 30.0
+    spin_deg: float = 0.0
 
     @property
     def R_M_L(self) -> np.ndarray:
         """(3, 3) the nominal sensor frame L in the pelvis frame M."""
-        return hip_lidar_rotation(self.tilt_up_deg)
+        return hip_lidar_rotation(self.tilt_up_deg, self.spin_deg)
 
     @property
     def T_M_L(self) -> np.ndarray:
@@ -99,6 +102,7 @@ class MountYawEstimator:
         self.max_correction = np.radians(max_correction_deg)
         self._cross = self._dot = self._path = 0.0
         self.windows = 0  #: windows completed
+        self.last_window_deg: float | None = None  #: the angle the last window measured, before the averaging (deg)
 
     def add(self, registered: np.ndarray, predicted: np.ndarray, axis: np.ndarray) -> float | None:
         """One sweep's registered and predicted translations (3,) in L and the body's axis (3,) in L; the
@@ -113,7 +117,9 @@ class MountYawEstimator:
         if self._path < self.min_path_m:
             return None
         self.windows += 1
-        angle = float(np.arctan2(self._cross, self._dot)) / min(self.windows, self.average_windows)
+        measured = float(np.arctan2(self._cross, self._dot))
+        self.last_window_deg = float(np.degrees(measured))
+        angle = measured / min(self.windows, self.average_windows)
         self._cross = self._dot = self._path = 0.0
         if abs(angle) < self.min_correction:
             return None

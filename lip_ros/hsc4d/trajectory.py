@@ -104,6 +104,12 @@ class TrajectoryConfig:
     # say the ground at the start was not level (or the mounting moved): the status says so (measured 0.1-1.2 deg
     # on rig captures whose start is level)
     max_mount_disagreement_deg: float = 3.0
+    # fewer than this share of the registrations of the last ``believed_window_s`` believed says the LiDAR's motion
+    # disagrees with the suit's through the mounting (a spin or tilt far from the nominal) or the scene holds ICP
+    # badly: the status says so (rig captures: all but a few in a capture believed, a sensor spun 180 deg about its
+    # axis and not told so under half)
+    min_believed_share: float = 0.5
+    believed_window_s: float = 5.0
 
     @property
     def suit_capacity(self) -> int:
@@ -113,7 +119,8 @@ class TrajectoryConfig:
     def __post_init__(self) -> None:
         if not (self.hold_s > 0.0 and self.map_after_s >= 0.0 and self.record_s > 0.0 and self.scale_window_s > 0.0
                 and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0 and self.suit_rate_hz > 0.0
-                and self.max_mount_disagreement_deg > 0.0):
+                and self.max_mount_disagreement_deg > 0.0 and 0.0 <= self.min_believed_share <= 1.0
+                and self.believed_window_s > 0.0):
             raise ValueError(f"invalid {self}")
 
 
@@ -202,6 +209,8 @@ class TrajectoryPipeline:
         self._rng = np.random.default_rng(c.seed)
         self._held: deque[tuple[np.ndarray, np.ndarray, int]] = deque()
         self._pending: deque[_Registered] = deque()  # registered before the map frame was fixed
+        self._recent: deque[tuple[int, bool]] = deque()  # (stamp, believed) of the registrations of the last
+        #   believed_window_s
         self._first: _Registered | None = None
         self._last_ns: int | None = None
         self._last_out: tuple[int, np.ndarray] | None = None  # the last output's stamp and fused T_map_P
@@ -243,6 +252,11 @@ class TrajectoryPipeline:
         if check is not None and check > self.config.max_mount_disagreement_deg:
             return (f"tracking; the walk's turns put the body's axis {check:.1f} deg from the mounting levelled on "
                     "the ground at the start: that ground was not level, or the mounting moved")
+        share = self.believed_share
+        if share is not None and share < self.config.min_believed_share:
+            return (f"tracking; only {100 * share:.0f} % of the last {self.config.believed_window_s:.0f} s' "
+                    "registrations believed: the LiDAR moves otherwise than the suit through the mounting (is "
+                    "mount_spin_deg, where the LiDAR's +x points, right?), or the scene gives ICP little to hold")
         return f"tracking; catching up with {len(self._held)} sweeps" if self._held else "tracking"
 
     @property
@@ -254,6 +268,14 @@ class TrajectoryPipeline:
             return None
         axis = np.array([0.0, 1.0, 0.0])  # M's y
         return float(np.degrees(np.arccos(np.clip((R.T @ axis) @ (self._T_L_M[:3, :3] @ axis), -1.0, 1.0))))
+
+    @property
+    def believed_share(self) -> float | None:
+        """The share of the last ``believed_window_s``' registrations believed; None before the map frame or with
+        fewer than 10 of them."""
+        if self.map_frame is None or len(self._recent) < 10:
+            return None
+        return sum(b for _, b in self._recent) / len(self._recent)
 
     @property
     def backlog(self) -> int:
@@ -428,8 +450,12 @@ class TrajectoryPipeline:
                                       self.rotation.still)
         if not step.registered:
             self.counts[RATE_CAPPED] += 1
-        elif step.rejected:
-            self.counts["registrations not believed"] += 1
+        else:
+            if step.rejected:
+                self.counts["registrations not believed"] += 1
+            self._recent.append((ref, not step.rejected))
+            while self._recent[0][0] < ref - self.config.believed_window_s * 1e9:
+                self._recent.popleft()
         # a resumed trajectory's first sweep anchors the graph where it was predicted if its registration is not
         # believed (no other landmark, no suit factor to an earlier node)
         landmark = None if step.rejected and not resumed else step.pose

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lip_ros.core.frames import hip_lidar_rotation
-from lip_ros.core.rotations import axis_angle_to_matrix
+from lip_ros.core.rotations import axis_angle_to_matrix, rot_z
 from lip_ros.rig.lidar import SensorPoses
 from lip_ros.rig.trajectory import Trajectory
 
@@ -26,17 +26,20 @@ __all__ = ["HipMount"]
 
 @dataclass(frozen=True)
 class HipMount:
-    """The LiDAR's pose in the pelvis frame: lever arm (m, in M) and tilt up about L's y axis (deg)."""
+    """The LiDAR's pose in the pelvis frame: lever arm (m, in M), tilt up about L's y axis (deg), spin about L's z
+    (deg: where its +x points, 0 where the body faces) and a small misalignment."""
 
     lever_m: np.ndarray = field(default_factory=lambda: np.array([-0.15, 0.0, -0.1]))
     tilt_up_deg: float = 30.0
     misalignment: np.ndarray = field(default_factory=lambda: np.zeros(3))  # rad, a rotation vector in L
+    spin_deg: float = 0.0
 
     @property
     def R_M_L(self) -> np.ndarray:
-        """(3, 3) the sensor frame L in the pelvis frame M: looking where the body faces, tilted up (and turned
-        by the misalignment)."""
-        return hip_lidar_rotation(self.tilt_up_deg) @ axis_angle_to_matrix(self.misalignment)
+        """(3, 3) the sensor frame L in the pelvis frame M: looking where the body faces, tilted up, turned by the
+        misalignment, and spun about its own axis (as :func:`hip_lidar_rotation` spins it)."""
+        return hip_lidar_rotation(self.tilt_up_deg) @ axis_angle_to_matrix(self.misalignment) @ rot_z(
+            np.radians(self.spin_deg))
 
     @property
     def T_M_L(self) -> np.ndarray:
@@ -51,7 +54,7 @@ class HipMount:
         per axis, the tilt by up to ``tilt_deg``, turned by up to ``turn_deg`` about each axis (uniform)."""
         return HipMount(self.lever_m + rng.uniform(-lever_m, lever_m, 3),
                         self.tilt_up_deg + float(rng.uniform(-tilt_deg, tilt_deg)),
-                        self.misalignment + np.radians(rng.uniform(-turn_deg, turn_deg, 3)))
+                        self.misalignment + np.radians(rng.uniform(-turn_deg, turn_deg, 3)), self.spin_deg)
 
     def poses(self, motion: Trajectory, start_ns: int = 0) -> SensorPoses:
         """The sensor's poses (R_W_L, p_W_L) at stamps (ns; ``start_ns`` is the motion's time 0) of ``motion``."""

@@ -43,7 +43,7 @@ import numpy as np
 from lip_ros.core.rotations import geodesic_angle
 from lip_ros.hsc4d import evaluation as ev
 from lip_ros.hsc4d.lidar_odometry import OdometryConfig
-from lip_ros.hsc4d.mount import LeverArmEstimator
+from lip_ros.hsc4d.mount import HipMountPrior, LeverArmEstimator
 from lip_ros.hsc4d.trajectory import RATE_CAPPED, TrajectoryConfig
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
@@ -131,6 +131,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mount-tilt-up", type=float, default=SiteCaptureConfig.mount_tilt_up_deg, metavar="DEG",
                         help="a rig variant: the hip LiDAR's true tilt up (before each seed's +-5 deg); the method is "
                              "told the nominal 30 deg")
+    parser.add_argument("--mount-spin", type=float, default=SiteCaptureConfig.mount_spin_deg, metavar="DEG",
+                        help="a rig variant: the hip LiDAR turned about its own spin axis by DEG (where its +x, the "
+                             "connector, points; 0: where the body faces)")
+    parser.add_argument("--nominal-spin", type=float, default=HipMountPrior.spin_deg, metavar="DEG",
+                        help="the method's nominal spin of the hip LiDAR (params/hsc4d.yaml's mount_spin_deg)")
     parser.add_argument("--suit-rate", type=float, default=SiteCaptureConfig.suit_rate_hz, metavar="HZ",
                         help="a rig variant: the suit's IMUs and odometry at this rate; the method is told 100 Hz")
     parser.add_argument("--suit-noise-scale", type=float, default=SiteCaptureConfig.suit_noise_scale, metavar="X",
@@ -138,13 +143,15 @@ def main(argv: list[str] | None = None) -> int:
                              "the rig's DOT-like ones")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    config = TrajectoryConfig(odometry=OdometryConfig(max_rate_hz=args.max_registration_hz))
+    config = TrajectoryConfig(mount=HipMountPrior(spin_deg=args.nominal_spin),
+                              odometry=OdometryConfig(max_rate_hz=args.max_registration_hz))
     args.out.mkdir(parents=True, exist_ok=True)
     runs, report = [], {}
     for seed in args.seeds:
         t0 = time.perf_counter()
         capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=args.seconds, columns=args.columns,
                                                 rate_hz=args.rate, mount_tilt_up_deg=args.mount_tilt_up,
+                                                mount_spin_deg=args.mount_spin,
                                                 suit_rate_hz=args.suit_rate,
                                                 suit_noise_scale=args.suit_noise_scale))
 

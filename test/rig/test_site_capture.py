@@ -204,6 +204,21 @@ def test_a_mount_tilt_variant_tilts_the_true_mounting_only():
         SiteCaptureConfig(mount_tilt_up_deg=75.0)
 
 
+def test_a_mount_spin_variant_turns_the_true_mounting_about_the_sensors_axis_only():
+    """``mount_spin_deg`` turns the true sensor about its own (spin) axis: the axis, the lever arm and the motion
+    stay, the sensor's +x turns by the spin; a spin off -180..180 is refused."""
+    nominal, variant = (SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, mount_spin_deg=spin))
+                        for spin in (0.0, 90.0))
+    R, R_spun = nominal.mount.R_M_L, variant.mount.R_M_L
+    np.testing.assert_allclose(R_spun[:, 2], R[:, 2], atol=1e-12)  # the spin axis in the pelvis frame
+    np.testing.assert_allclose(R_spun[:, 0], R[:, 1], atol=1e-12)  # +x turned 90 deg: where +y was
+    np.testing.assert_array_equal(variant.mount.lever_m, nominal.mount.lever_m)
+    t = np.linspace(1.0, 10.0, 5)
+    np.testing.assert_array_equal(variant.truth(t).pelvis, nominal.truth(t).pelvis)
+    with pytest.raises(ValueError):
+        SiteCaptureConfig(mount_spin_deg=270.0)
+
+
 def test_a_suit_rate_variant_samples_the_imus_and_the_odometry_at_that_rate():
     """``suit_rate_hz``: every segment and the suit's odometry at the variant's rate, the suit's clock offset as in
     the contract's 100 Hz capture; a rate off the rig's range is refused."""

@@ -167,6 +167,8 @@ class TrajectoryNode(GraphNode):
         "max_waiting_sweeps": Param("sweeps that may wait for the suit; the oldest goes on without it", positive),
         "mount_lever_m": Param("nominal LiDAR origin in the pelvis frame (x left, y up, z forward), m", numbers(3)),
         "mount_tilt_up_deg": Param("nominal tilt up of the LiDAR on the hip, deg"),
+        "mount_spin_deg": Param("the LiDAR's turn about its own (spin) axis, deg: where its +x, an Ouster's "
+                                "connector, points; 0 where the body faces, 180 with the connector to the back"),
         "hold_s": Param("sweeps held while waiting for the jump (older ones are dropped and counted)", positive),
         "map_after_s": Param("registered capture (the wearer standing still) before the map frame is fixed",
                              non_negative),
@@ -185,7 +187,8 @@ class TrajectoryNode(GraphNode):
         p = self.params
         try:
             self._config = TrajectoryConfig(
-                mount=HipMountPrior(tuple(map(float, p["mount_lever_m"])), float(p["mount_tilt_up_deg"])),
+                mount=HipMountPrior(tuple(map(float, p["mount_lever_m"])), float(p["mount_tilt_up_deg"]),
+                                    float(p["mount_spin_deg"])),
                 odometry=OdometryConfig(max_rate_hz=float(p["max_registration_hz"])),
                 hold_s=float(p["hold_s"]), map_after_s=float(p["map_after_s"]), suit_rate_hz=float(p["suit_rate_hz"]))
         except ValueError as exc:
