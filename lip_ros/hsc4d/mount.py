@@ -14,6 +14,14 @@ sensor then moves by more or less than the pelvis, by the turn applied to the
 lever (hand-eye calibration's translation, :class:`LeverArmEstimator`). Hand-eye
 calibration's rotation (:class:`MountRotationEstimator`) checks the levelled
 mounting from the turns of the walk, which do not need the ground to be level.
+
+All of these correct a nominal mounting by a few degrees. A sensor worn spun
+about its own axis (an Ouster's connector to the back rather than forward:
+the same tilt, another way round) is tens of degrees off it, and the up it
+gives in the sensor's frame is off by up to twice the tilt, which the jump
+sync and the map frame start from: :class:`SpinCheck` finds the spin from the
+ground seen in the first sweeps, whose up lies the tilt away from the spin
+axis whatever the spin, and in the direction about it that the spin decides.
 """
 
 from __future__ import annotations
@@ -24,13 +32,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from lip_ros.core.frames import hip_lidar_rotation
+from lip_ros.core.ground_plane import fit_ground_plane
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 #: the prior of the suit's stride scale in :class:`LeverArmEstimator` (about 1; loose, it is solved for)
 _SCALE_PRIOR = 0.2
 
-__all__ = ["HipMountPrior", "rotation_between", "levelled_mount_rotation", "MountYawEstimator", "LeverArmEstimator",
-           "MountRotationEstimator"]
+__all__ = ["HipMountPrior", "rotation_between", "levelled_mount_rotation", "SpinCheckConfig", "SpinCheck",
+           "MountYawEstimator", "LeverArmEstimator", "MountRotationEstimator"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +89,111 @@ def levelled_mount_rotation(R_M_L: np.ndarray, up_M: np.ndarray, up_L: np.ndarra
     ``up_M`` (3,) at ``up_L`` (3,) in the sensor frame: R' = R_M_L C with C^T (R_M_L^T up_M) = up_L."""
     R_M_L = np.asarray(R_M_L, dtype=np.float64)
     return R_M_L @ rotation_between(up_L, R_M_L.T @ np.asarray(up_M, dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class SpinCheckConfig:
+    """How the spin is read from the ground of the first sweeps (:class:`SpinCheck`)."""
+
+    min_range_m: float = 1.5  # points nearer than this are left out (the wearer's own returns)
+    max_range_m: float = 6.0  # ... and farther than this (the ground near the wearer)
+    tolerance_m: float = 0.04  # of a point on the ground plane
+    margin_deg: float = 25.0  # the ground's up within the nominal tilt plus this of the spin axis (walls are 60+ off)
+    tilt_margin_deg: float = 25.0  # ... and within this of the nominal tilt (the spin turns it, does not tilt it;
+    #                                the rig's variants put the true tilt 10-50 deg against the nominal 30)
+    height_m: tuple[float, float] = (0.4, 1.6)  # the sensor this high above the plane (on a hip)
+    min_points: int = 200  # on the plane
+    min_tilt_deg: float = 8.0  # a sensor tilted less shows no spin in the ground's up (its spin: the walk's yaw)
+    sweeps: int = 5  # sweeps whose ground is read before deciding
+    max_sweeps: int = 30  # ... tried at most (the ground not seen: the spin stays as configured)
+    agree_deg: float = 10.0  # each sweep's reading within this of their mean, else the spin stays as configured
+    min_error_deg: float = 30.0  # a spin found at least this far from the nominal is used; below, levelling and the
+    #                              walk's yaw estimate take care of it (the rig's mountings: within 10 deg)
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.min_range_m < self.max_range_m and self.tolerance_m > 0.0 and self.margin_deg > 0.0
+                and self.tilt_margin_deg > 0.0 and 0.0 < self.height_m[0] < self.height_m[1] and self.min_points >= 3
+                and 0.0 <= self.min_tilt_deg and 1 <= self.sweeps <= self.max_sweeps and self.agree_deg > 0.0
+                and self.min_error_deg > 0.0):
+            raise ValueError(f"invalid {self}")
+
+
+class SpinCheck:
+    """The sensor's spin about its own axis against the nominal mounting's, from the ground under a wearer standing
+    upright: in each sweep the ground's up (a plane within the nominal tilt plus ``margin_deg`` of the spin axis,
+    on points away from the wearer) lies the tilt from the axis, in the direction about it the spin decides; the
+    difference from the nominal up's direction is how far the sensor is spun from the nominal. :meth:`add` takes
+    sweeps until ``sweeps`` of them read the ground (or ``max_sweeps`` were tried); the readings must agree within
+    ``agree_deg``. :attr:`correction_deg` is then the spin to add to the nominal one when it is at least
+    ``min_error_deg`` (0 otherwise, or when the ground did not tell), :attr:`status` says what was found."""
+
+    def __init__(self, mount: HipMountPrior, config: SpinCheckConfig | None = None, seed: int = 0) -> None:
+        self.mount = mount
+        self.config = config or SpinCheckConfig()
+        self._rng = np.random.default_rng([seed, 7])  # its own stream: the checks leave the other fits' draws alone
+        self._readings: list[float] = []
+        self._tried = 0
+        self.correction_deg: float | None = None  #: once decided: the spin to add to the nominal one (deg)
+        self.status = "not checked yet"  #: what was found
+
+    @property
+    def decided(self) -> bool:
+        """Whether the check is over."""
+        return self.correction_deg is not None
+
+    def skip(self, status: str) -> None:
+        """End the check without a reading (the mounting came from elsewhere: ``status``)."""
+        self.correction_deg, self.status = 0.0, status
+
+    def reading_deg(self, points: np.ndarray) -> float | None:
+        """How far (deg) one sweep's ground (points (N, 3) in L) says the sensor is spun from the nominal mounting;
+        None if no ground plane was found (tilted from the spin axis as the nominal tilt, with the sensor a hip's
+        height above it), or the sensor is tilted too little from it to tell."""
+        c, m = self.config, self.mount
+        points = np.asarray(points, dtype=np.float64)
+        r = np.linalg.norm(points, axis=1)
+        plane = fit_ground_plane(points[(r >= c.min_range_m) & (r <= c.max_range_m)], c.tolerance_m,
+                                 m.tilt_up_deg + c.margin_deg, c.min_points, self._rng)
+        if plane is None or not c.height_m[0] <= plane.offset <= c.height_m[1]:
+            return None
+        up, nominal = plane.normal, m.R_M_L.T @ np.array([0.0, 1.0, 0.0])  # gravity's up in L; M's y through m
+        tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+        if tilt < c.min_tilt_deg or abs(tilt - m.tilt_up_deg) > c.tilt_margin_deg:
+            return None
+        # spun by d more than nominal, R_M_L becomes R_M_L Rz(d): the up in L turns by -d about L's z
+        d = np.arctan2(nominal[1], nominal[0]) - np.arctan2(up[1], up[0])
+        return float(np.degrees(np.arctan2(np.sin(d), np.cos(d))))
+
+    def add(self, points: np.ndarray) -> bool:
+        """One sweep of the wearer standing (points (N, 3) in L, non-finite ones left out); whether the check is
+        now decided."""
+        if self.decided:
+            return True
+        c = self.config
+        self._tried += 1
+        points = np.asarray(points, dtype=np.float64)
+        reading = self.reading_deg(points[np.isfinite(points).all(axis=1)])
+        if reading is not None:
+            self._readings.append(reading)
+        if len(self._readings) >= c.sweeps:
+            a = np.radians(self._readings)
+            mean = float(np.degrees(np.arctan2(np.sin(a).sum(), np.cos(a).sum())))
+            spread = max(abs((r - mean + 180.0) % 360.0 - 180.0) for r in self._readings)
+            if spread > c.agree_deg:
+                self.correction_deg = 0.0
+                self.status = (f"as configured: the ground's readings of the spin disagree ({spread:.0f} deg from "
+                               "their mean)")
+            elif abs(mean) >= c.min_error_deg:
+                self.correction_deg = mean
+                self.status = (f"the ground at the start shows the LiDAR spun {mean:+.0f} deg from mount_spin_deg: "
+                               f"used {self.mount.spin_deg + mean:.0f} deg (set mount_spin_deg to it)")
+            else:
+                self.correction_deg = 0.0
+                self.status = f"as configured (the ground at the start: {mean:+.1f} deg)"
+        elif self._tried >= c.max_sweeps:
+            self.correction_deg = 0.0
+            self.status = f"as configured: the ground was not read in {self._tried} sweeps"
+        return self.decided
 
 
 class MountYawEstimator:

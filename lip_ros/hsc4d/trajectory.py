@@ -59,6 +59,8 @@ from lip_ros.hsc4d.mount import (
     LeverArmEstimator,
     MountRotationEstimator,
     MountYawEstimator,
+    SpinCheck,
+    SpinCheckConfig,
     levelled_mount_rotation,
 )
 from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
@@ -92,6 +94,7 @@ class TrajectoryConfig:
     sweep_height: SweepHeightConfig = field(default_factory=SweepHeightConfig)
     jump: JumpSyncConfig = field(default_factory=JumpSyncConfig)
     site_map: SiteMapConfig = field(default_factory=SiteMapConfig)
+    spin_check: SpinCheckConfig = field(default_factory=SpinCheckConfig)
     hold_s: float = 15.0  # sweeps held while waiting for the jump (about 0.8 MB each at 1024 x 64)
     map_after_s: float = 1.0  # registered capture before the map frame is fixed (the wearer stands still)
     scale_window_s: float = 20.0  # the suit's stride scale is measured over this much believed walking
@@ -203,6 +206,7 @@ class TrajectoryPipeline:
         self.mount_yaw_deg = 0.0  #: how far walking turned it since, about the body's axis
         self.lever = LeverArmEstimator(c.mount.lever_m)
         self.hand_eye = MountRotationEstimator()  #: the mounting from the walk's turns, a check on the levelled one
+        self.spin = SpinCheck(c.mount, c.spin_check, c.seed)  #: the sensor's spin from the ground of the first sweeps
         self.site = SiteMap(c.site_map)  #: the whole site, placed by the live odometry (S_live)
         self.mapped = 0  #: steps put in the site map
         self.counts: Counter[str] = Counter()
@@ -252,6 +256,8 @@ class TrajectoryPipeline:
         if check is not None and check > self.config.max_mount_disagreement_deg:
             return (f"tracking; the walk's turns put the body's axis {check:.1f} deg from the mounting levelled on "
                     "the ground at the start: that ground was not level, or the mounting moved")
+        if self.spin.correction_deg:
+            return f"tracking; {self.spin.status}"
         share = self.believed_share
         if share is not None and share < self.config.min_believed_share:
             return (f"tracking; only {100 * share:.0f} % of the last {self.config.believed_window_s:.0f} s' "
@@ -351,6 +357,7 @@ class TrajectoryPipeline:
         self.lever = LeverArmEstimator(tuple(state.T_M_L[:3, 3]))  # the estimate goes on from the lever in use
         self.stride_scale.value = state.stride_scale
         self.mount_levelled_deg, self.mount_yaw_deg = state.mount_levelled_deg, state.mount_yaw_deg
+        self.spin.skip("as saved (resumed)")
         self._resume = state
 
     def _start_from(self, state: TrajectoryResume, ref: int) -> None:
@@ -422,17 +429,38 @@ class TrajectoryPipeline:
         return out
 
     def _wait_for_jump(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> None:
-        """Hold the sweep; give the jump sync the sensor's height above the ground in it."""
+        """Hold the sweep; give the jump sync the sensor's height above the ground in it, once the mounting's spin
+        is checked (the sweeps held until then, in order, when it is)."""
+        if self.spin.decided:
+            self._sweep_height(points, point_ns)
+        elif self.spin.add(points):
+            self._use_spin()
+            for held_points, held_ns, _ in self._held:
+                self._sweep_height(held_points, held_ns)
+            self._sweep_height(points, point_ns)
+        self._held.append((points, point_ns, stamp_ns))
+        while self._held[-1][2] - self._held[0][2] > self.config.hold_s * 1e9:
+            self._held.popleft()
+            self.counts["sweeps dropped waiting for the jump"] += 1
+
+    def _sweep_height(self, points: np.ndarray, point_ns: np.ndarray) -> None:
+        """Give the jump sync the sensor's height above the ground in one sweep before the jump."""
         keep = self.odometry.wearer.keep(points)
         height = sweep_height(points[keep], point_ns[keep], self._rng, self.config.mount, self.config.sweep_height)
         if height is None:
             self.counts["no ground in a sweep before the jump"] += 1
         else:
             self.jump.add_lidar(*height)
-        self._held.append((points, point_ns, stamp_ns))
-        while self._held[-1][2] - self._held[0][2] > self.config.hold_s * 1e9:
-            self._held.popleft()
-            self.counts["sweeps dropped waiting for the jump"] += 1
+
+    def _use_spin(self) -> None:
+        """Spin the nominal mounting by what the ground of the first sweeps showed, if it showed a spin."""
+        turn = self.spin.correction_deg
+        if not turn:
+            return
+        mount = self.config.mount
+        mount = replace(mount, spin_deg=float((mount.spin_deg + turn + 180.0) % 360.0 - 180.0))
+        self.config = replace(self.config, mount=mount)
+        self._set_mount(mount.T_M_L)
 
     def _register(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> list[TrajectoryStep]:
         """Register and fuse one sweep; the steps that became ready."""

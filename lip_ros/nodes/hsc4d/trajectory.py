@@ -168,7 +168,9 @@ class TrajectoryNode(GraphNode):
         "mount_lever_m": Param("nominal LiDAR origin in the pelvis frame (x left, y up, z forward), m", numbers(3)),
         "mount_tilt_up_deg": Param("nominal tilt up of the LiDAR on the hip, deg"),
         "mount_spin_deg": Param("the LiDAR's turn about its own (spin) axis, deg: where its +x, an Ouster's "
-                                "connector, points; 0 where the body faces, 180 with the connector to the back"),
+                                "connector, points; 0 where the body faces, 180 with the connector to the back (a "
+                                "tilted sensor spun 30 deg or more from it is found from the ground at the start "
+                                "and used, with a WARN)"),
         "hold_s": Param("sweeps held while waiting for the jump (older ones are dropped and counted)", positive),
         "map_after_s": Param("registered capture (the wearer standing still) before the map frame is fixed",
                              non_negative),
@@ -446,7 +448,10 @@ class TrajectoryNode(GraphNode):
             while len(self._received) > _MAX_TRACKED:  # dropped from the backlog, never output
                 del self._received[next(iter(self._received))]
         start = time.monotonic()
+        spin_checked = self.pipeline.spin.decided
         steps = self.pipeline.add_sweep(sweep.points, sweep.point_ns, sweep.stamp_ns, max_register=2)
+        if not spin_checked and self.pipeline.spin.correction_deg:
+            self.get_logger().warning(f"mounting: {self.pipeline.spin.status}")
         budget = _CATCH_UP_SHARE / self.input_rate_hz(_LIDAR)  # of the period the sweeps' stamps show
         while self.pipeline.backlog and self.pipeline.offset_ns is not None and time.monotonic() - start < budget:
             steps += self.pipeline.catch_up(1)
@@ -513,6 +518,7 @@ class TrajectoryNode(GraphNode):
             "suit clock offset (ms)": "unknown" if offset is None else f"{offset * 1e-6:.1f}",
             "mounting levelled by (deg)": f"{pipe.mount_levelled_deg:.2f}",
             "mounting turned about the body by (deg)": f"{pipe.mount_yaw_deg:.2f}",
+            "mounting's spin (the ground at the start)": pipe.spin.status,
             "body axis, walk's turns vs levelled (deg)": _mount_check(pipe),
             "lever arm in the pelvis frame (m)": " ".join(f"{v:+.3f}" for v in pipe.lever_m),
             "lever arm sigma (m)": " ".join(f"{v:.3f}" for v in pipe.lever.sigma_m),
