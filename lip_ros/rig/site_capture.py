@@ -57,6 +57,9 @@ class SiteCaptureConfig:
     # the LiDAR's spin about its own axis (deg; where its +x, an Ouster's connector, points; 0 where the body faces,
     # as the method's nominal mounting): a variant for a sensor worn another way round
     mount_spin_deg: float = HipMount.spin_deg
+    # the LiDAR's lever arm in the pelvis frame (m; x left, y up, z forward) before the seed's perturbation; None: the
+    # rig's own (0.15 m to the right, 0.1 m behind): a variant, e.g. the sensor on the other hip
+    mount_lever_m: tuple[float, float, float] | None = None
     # the rate of the suit's IMUs and of its odometry (``odometry.rate_hz`` is overridden): the contract's 100 Hz,
     # or a variant (the method is told 100 Hz unless its ``suit_rate_hz`` is set)
     suit_rate_hz: float = SUIT_RATE_HZ
@@ -112,7 +115,8 @@ class SiteCapture:
         self.motion = make_site_motion(self.terrain, cfg.seconds, cfg.seed)
         rng = np.random.default_rng([cfg.seed, 300])
         self.body = BodyModel(self.motion.skeleton, girth=float(rng.uniform(0.9, 1.15)))
-        self.mount = HipMount(tilt_up_deg=cfg.mount_tilt_up_deg, spin_deg=cfg.mount_spin_deg).perturbed(rng)
+        lever = {} if cfg.mount_lever_m is None else {"lever_m": np.array(cfg.mount_lever_m, dtype=np.float64)}
+        self.mount = HipMount(tilt_up_deg=cfg.mount_tilt_up_deg, spin_deg=cfg.mount_spin_deg, **lever).perturbed(rng)
         self.lidar = OusterModel.os1_64(columns=cfg.columns, rate_hz=cfg.rate_hz, column0_azimuth_deg=0.0)
         self.suit = make_imu_truth(self.motion.skeleton, ImuRigConfig.suit(self.motion.skeleton, cfg.suit_rate_hz),
                                    np.random.default_rng([cfg.seed, 301]))

@@ -134,6 +134,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mount-spin", type=float, default=SiteCaptureConfig.mount_spin_deg, metavar="DEG",
                         help="a rig variant: the hip LiDAR turned about its own spin axis by DEG (where its +x, the "
                              "connector, points; 0: where the body faces)")
+    parser.add_argument("--mount-lever", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                        help="a rig variant: the hip LiDAR's lever arm in the pelvis frame (m; x left, y up, z "
+                             "forward), e.g. 0.15 0 -0.1 for the left hip; the method is told the nominal right hip")
     parser.add_argument("--nominal-spin", type=float, default=HipMountPrior.spin_deg, metavar="DEG",
                         help="the method's nominal spin of the hip LiDAR (params/hsc4d.yaml's mount_spin_deg)")
     parser.add_argument("--suit-rate", type=float, default=SiteCaptureConfig.suit_rate_hz, metavar="HZ",
@@ -152,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=args.seconds, columns=args.columns,
                                                 rate_hz=args.rate, mount_tilt_up_deg=args.mount_tilt_up,
                                                 mount_spin_deg=args.mount_spin,
+                                                mount_lever_m=args.mount_lever and tuple(args.mount_lever),
                                                 suit_rate_hz=args.suit_rate,
                                                 suit_noise_scale=args.suit_noise_scale))
 

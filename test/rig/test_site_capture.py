@@ -219,6 +219,17 @@ def test_a_mount_spin_variant_turns_the_true_mounting_about_the_sensors_axis_onl
         SiteCaptureConfig(mount_spin_deg=270.0)
 
 
+def test_a_mount_lever_variant_moves_the_true_lever_arm_only():
+    """``mount_lever_m`` moves the true lever arm before the seed's perturbation (the same perturbation): on the
+    other hip, the sensor's side mirrored; the rotation and the motion stay."""
+    nominal = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
+    left = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, mount_lever_m=(0.15, 0.0, -0.1)))
+    np.testing.assert_allclose(left.mount.lever_m - nominal.mount.lever_m, [0.3, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_array_equal(left.mount.R_M_L, nominal.mount.R_M_L)
+    t = np.linspace(1.0, 10.0, 5)
+    np.testing.assert_array_equal(left.truth(t).pelvis, nominal.truth(t).pelvis)
+
+
 def test_a_suit_rate_variant_samples_the_imus_and_the_odometry_at_that_rate():
     """``suit_rate_hz``: every segment and the suit's odometry at the variant's rate, the suit's clock offset as in
     the contract's 100 Hz capture; a rate off the rig's range is refused."""
