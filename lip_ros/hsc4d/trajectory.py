@@ -113,6 +113,10 @@ class TrajectoryConfig:
     # axis and not told so under half)
     min_believed_share: float = 0.5
     believed_window_s: float = 5.0
+    # the suit's odometry putting the pelvis's up farther than this from its pelvis IMU's at the start says its
+    # orientation is not the pelvis segment's in the contract's model axes: the status says so (the rig's: under 1
+    # deg, the IMU's tilt error)
+    max_odometry_tilt_deg: float = 10.0
 
     @property
     def suit_capacity(self) -> int:
@@ -123,7 +127,7 @@ class TrajectoryConfig:
         if not (self.hold_s > 0.0 and self.map_after_s >= 0.0 and self.record_s > 0.0 and self.scale_window_s > 0.0
                 and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0 and self.suit_rate_hz > 0.0
                 and self.max_mount_disagreement_deg > 0.0 and 0.0 <= self.min_believed_share <= 1.0
-                and self.believed_window_s > 0.0):
+                and self.believed_window_s > 0.0 and self.max_odometry_tilt_deg > 0.0):
             raise ValueError(f"invalid {self}")
 
 
@@ -202,6 +206,7 @@ class TrajectoryPipeline:
         self.stride_scale = StrideScale(c.scale_window_s, c.scale_min_path_m, c.max_scale_error)
         self.map_frame: MapFrame | None = None
         self.mount_levelled_deg = float("nan")  #: how far levelling turned the nominal mounting
+        self.odometry_tilt_deg = float("nan")  #: the suit odometry's pelvis up from its pelvis IMU's at the start
         self.mount_yaw = MountYawEstimator()
         self.mount_yaw_deg = 0.0  #: how far walking turned it since, about the body's axis
         self.lever = LeverArmEstimator(c.mount.lever_m)
@@ -250,6 +255,11 @@ class TrajectoryPipeline:
             return f"{self.jump.status}; {len(self._held)} sweeps held"
         if self._resume is not None:
             return "resuming the saved trajectory: waiting for the suit's pose at a sweep"
+        if self.odometry_tilt_deg > self.config.max_odometry_tilt_deg:
+            return (f"{'synced' if self.map_frame is None else 'tracking'}; the suit's odometry puts the pelvis's up "
+                    f"{self.odometry_tilt_deg:.0f} deg from its pelvis IMU's: /mocap/odometry's orientation must be "
+                    "the pelvis segment's, in the contract's model axes (x left, y up, z forward) and the suit IMUs' "
+                    "world")
         if self.map_frame is None:
             return f"synced; fixing the map frame from the first sweeps; {len(self._held)} sweeps to register"
         check = self.mount_disagreement_deg
@@ -530,6 +540,8 @@ class TrajectoryPipeline:
         first = self._first
         if ref - first.stamp_ns < self.config.map_after_s * 1e9:
             return False
+        if not np.isfinite(self.odometry_tilt_deg):
+            self._check_odometry(first.stamp_ns)
         up = self.suit.up_in_lidar(first.stamp_ns)
         if up is None:
             up = self.config.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])
@@ -542,6 +554,15 @@ class TrajectoryPipeline:
             return False
         self._level(first)
         return True
+
+    def _check_odometry(self, t_ns: int) -> None:
+        """How far the suit odometry's pelvis up is from the pelvis IMU's at ``t_ns`` (:attr:`odometry_tilt_deg`)."""
+        pelvis = self.suit.pelvis(t_ns)
+        R_I_L = self.rotation.rotation_of_lidar(np.array([t_ns]))[0]  # R_I_P R_M_L, the mounting in use
+        if pelvis is None or not np.isfinite(R_I_L).all():
+            return
+        up_imu, up_odometry = self.rotation.R_M_L @ R_I_L.T @ [0.0, 0.0, 1.0], pelvis[:3, :3].T @ [0.0, 0.0, 1.0]
+        self.odometry_tilt_deg = float(np.degrees(np.arccos(np.clip(up_imu @ up_odometry, -1.0, 1.0))))
 
     def _level(self, first: _Registered) -> None:
         """Level the mounting with the map's up at the first sweep, give the odometry gravity, and put the map's

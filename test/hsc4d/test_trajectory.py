@@ -9,8 +9,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from lip_ros.core.frames import R_L_M_FACING_X
 from lip_ros.core.metrics import align_yaw_translation
-from lip_ros.core.rotations import geodesic_angle, rot_x
+from lip_ros.core.rotations import geodesic_angle, matrix_to_quat, quat_to_matrix, rot_x
 from lip_ros.hsc4d.evaluation import (
     ABLATIONS,
     METHODS,
@@ -223,6 +224,33 @@ def test_a_lidar_worn_spun_about_its_axis_is_found_from_the_ground_and_reported(
     else:
         assert abs(abs(pipeline.spin.correction_deg) - 180.0) < 10.0
         assert warned and pipeline.status.startswith("tracking; the ground at the start shows the LiDAR spun")
+
+
+@pytest.mark.parametrize("convention", ["model axes", "base_link axes"])
+def test_a_suit_odometry_oriented_otherwise_than_the_pelvis_segment_is_reported(convention):
+    """The contract gives the suit segments' orientations in its model axes (x left, y up, z forward); it does not
+    say how ``/mocap/odometry`` is oriented, and the method takes it for the pelvis segment's. Published in a
+    ROS base_link's axes instead (x forward, y left, z up), its pelvis's up is 90 deg from the pelvis IMU's at
+    the start, and the status says so; the rig's own odometry agrees with the IMU within a degree."""
+    capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, columns=512))
+    refiner = CaptureRefiner()
+    if convention == "base_link axes":
+        add = refiner.add_suit_odometry
+        R_M_base = R_L_M_FACING_X.T  # base_link's x, y, z in the model axes: forward, left, up
+
+        def add_rotated(stamp_ns, position, quat):
+            return add(stamp_ns, position, matrix_to_quat(quat_to_matrix(quat) @ R_M_base))
+
+        refiner.add_suit_odometry = add_rotated
+    pipeline = refiner.pipeline
+    for _, stamp_ns, points, point_ns in capture_sweeps(capture, refiner):
+        pipeline.add_sweep(points, point_ns, stamp_ns)
+        if pipeline.map_frame is not None:
+            break
+    if convention == "model axes":
+        assert pipeline.odometry_tilt_deg < 1.0 and "/mocap/odometry" not in pipeline.status
+    else:
+        assert abs(pipeline.odometry_tilt_deg - 90.0) < 5.0 and "/mocap/odometry" in pipeline.status
 
 
 @pytest.mark.parametrize("seed, tilt_deg", [(11, 45.0), (5, 30.0)])

@@ -517,6 +517,7 @@ class TrajectoryNode(GraphNode):
         values: dict[str, Any] = {
             "suit clock offset (ms)": "unknown" if offset is None else f"{offset * 1e-6:.1f}",
             "mounting levelled by (deg)": f"{pipe.mount_levelled_deg:.2f}",
+            "suit odometry's pelvis up vs its pelvis IMU's (deg)": f"{pipe.odometry_tilt_deg:.2f}",
             "mounting turned about the body by (deg)": f"{pipe.mount_yaw_deg:.2f}",
             "mounting's spin (the ground at the start)": pipe.spin.status,
             "body axis, walk's turns vs levelled (deg)": _mount_check(pipe),
