@@ -11,6 +11,7 @@ Conventions used across lip_ros:
 
 from __future__ import annotations
 
+import itertools
 import warnings
 
 import numpy as np
@@ -30,6 +31,7 @@ __all__ = [
     "rot_z",
     "geodesic_angle",
     "project_to_so3",
+    "nearest_axes_turn",
 ]
 
 
@@ -138,3 +140,23 @@ def project_to_so3(m: np.ndarray) -> np.ndarray:
     u = u.copy()
     u[..., :, 2] *= det[..., None]
     return u @ vt
+
+
+def _axes_turns() -> np.ndarray:
+    """(24, 3, 3) the rotations that take the axes onto the axes (signed permutations, determinant +1)."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            m = np.zeros((3, 3))
+            m[list(perm), range(3)] = signs
+            if np.linalg.det(m) > 0.0:
+                out.append(m)
+    return np.array(out)
+
+
+_AXES_TURNS = _axes_turns()
+
+
+def nearest_axes_turn(rot: np.ndarray) -> np.ndarray:
+    """The rotation (3, 3) that takes the axes onto the axes (one of 24: another axis convention) nearest ``rot``."""
+    return _AXES_TURNS[int(np.argmax(np.einsum("kij,ij->k", _AXES_TURNS, np.asarray(rot, dtype=np.float64))))].copy()

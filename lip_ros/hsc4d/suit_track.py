@@ -41,6 +41,7 @@ class SuitTrack:
         self.offset_ns: int | None = None
         self.T_M_L = self.mount.T_M_L  #: the mounting used: the nominal one until :meth:`set_mount`
         self._T_L_M = self.mount.T_L_M
+        self.axes: np.ndarray | None = None  #: the pelvis's axes in the odometry's orientation's, if not the same
 
     def set_mount(self, T_M_L: np.ndarray) -> None:
         """Use this sensor pose (4, 4) in the pelvis frame from now on (e.g. levelled with gravity at the start)."""
@@ -85,6 +86,8 @@ class SuitTrack:
         q = (1.0 - w) * q0 + w * (q1 if q0 @ q1 >= 0.0 else -q1)
         out = np.eye(4)
         out[:3, :3] = quat_to_matrix(q / np.linalg.norm(q))
+        if self.axes is not None:  # an odometry oriented in other axes than the pelvis segment's
+            out[:3, :3] = out[:3, :3] @ self.axes
         out[:3, 3] = (1.0 - w) * p0 + w * p1
         return out
 

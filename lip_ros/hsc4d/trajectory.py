@@ -50,7 +50,7 @@ import numpy as np
 
 from lip_ros.core.imu_sync import ImuSampleLike
 from lip_ros.core.metrics import align_yaw_translation
-from lip_ros.core.rotations import axis_angle_to_matrix
+from lip_ros.core.rotations import axis_angle_to_matrix, geodesic_angle, nearest_axes_turn
 from lip_ros.hsc4d.jump_sync import JumpSync, JumpSyncConfig
 from lip_ros.hsc4d.lidar_odometry import LidarOdometry, OdometryConfig, WearerFilter
 from lip_ros.hsc4d.map_frame import MapFrame, MapFrameConfig, estimate_map_frame
@@ -207,6 +207,7 @@ class TrajectoryPipeline:
         self.map_frame: MapFrame | None = None
         self.mount_levelled_deg = float("nan")  #: how far levelling turned the nominal mounting
         self.odometry_tilt_deg = float("nan")  #: the suit odometry's pelvis up from its pelvis IMU's at the start
+        self.odometry_axes: np.ndarray | None = None  #: the pelvis's axes in the odometry's, if it uses others
         self.mount_yaw = MountYawEstimator()
         self.mount_yaw_deg = 0.0  #: how far walking turned it since, about the body's axis
         self.lever = LeverArmEstimator(c.mount.lever_m)
@@ -256,10 +257,15 @@ class TrajectoryPipeline:
         if self._resume is not None:
             return "resuming the saved trajectory: waiting for the suit's pose at a sweep"
         if self.odometry_tilt_deg > self.config.max_odometry_tilt_deg:
-            return (f"{'synced' if self.map_frame is None else 'tracking'}; the suit's odometry puts the pelvis's up "
-                    f"{self.odometry_tilt_deg:.0f} deg from its pelvis IMU's: /mocap/odometry's orientation must be "
-                    "the pelvis segment's, in the contract's model axes (x left, y up, z forward) and the suit IMUs' "
-                    "world")
+            where = "synced" if self.map_frame is None else "tracking"
+            said = (f"the suit's odometry put the pelvis's up {self.odometry_tilt_deg:.0f} deg from its pelvis IMU's "
+                    "at the start: /mocap/odometry's orientation should be the pelvis segment's, in the contract's "
+                    "model axes (x left, y up, z forward) and the suit IMUs' world")
+            if self.odometry_axes is None:
+                return f"{where}; {said}"
+            columns = ", ".join("".join(("+" if v > 0 else "-") + "xyz"[i] for i, v in enumerate(c) if v)
+                                for c in self.odometry_axes.T)
+            return f"{where}; {said}; its axes taken for the segment's x, y, z: {columns}"
         if self.map_frame is None:
             return f"synced; fixing the map frame from the first sweeps; {len(self._held)} sweeps to register"
         check = self.mount_disagreement_deg
@@ -556,13 +562,24 @@ class TrajectoryPipeline:
         return True
 
     def _check_odometry(self, t_ns: int) -> None:
-        """How far the suit odometry's pelvis up is from the pelvis IMU's at ``t_ns`` (:attr:`odometry_tilt_deg`)."""
+        """How far the suit odometry's pelvis up is from the pelvis IMU's at ``t_ns`` (:attr:`odometry_tilt_deg`);
+        if farther than ``max_odometry_tilt_deg`` and the two orientations differ by a turn of the axes (another
+        axis convention: a ROS base_link's x forward, y left, z up, say), the odometry's orientations are read in
+        the pelvis segment's axes from then on (:attr:`odometry_axes`)."""
         pelvis = self.suit.pelvis(t_ns)
         R_I_L = self.rotation.rotation_of_lidar(np.array([t_ns]))[0]  # R_I_P R_M_L, the mounting in use
         if pelvis is None or not np.isfinite(R_I_L).all():
             return
-        up_imu, up_odometry = self.rotation.R_M_L @ R_I_L.T @ [0.0, 0.0, 1.0], pelvis[:3, :3].T @ [0.0, 0.0, 1.0]
-        self.odometry_tilt_deg = float(np.degrees(np.arccos(np.clip(up_imu @ up_odometry, -1.0, 1.0))))
+        R_I_P = R_I_L @ self.rotation.R_M_L.T  # the pelvis IMU's
+        up = np.array([0.0, 0.0, 1.0])
+        self.odometry_tilt_deg = float(np.degrees(np.arccos(np.clip((R_I_P.T @ up) @ (pelvis[:3, :3].T @ up), -1.0,
+                                                                    1.0))))
+        if self.odometry_tilt_deg <= self.config.max_odometry_tilt_deg:
+            return
+        axes = nearest_axes_turn(pelvis[:3, :3].T @ R_I_P)
+        if np.degrees(geodesic_angle(axes, pelvis[:3, :3].T @ R_I_P)) <= self.config.max_odometry_tilt_deg:
+            self.odometry_axes = axes
+            self.suit.axes = axes
 
     def _level(self, first: _Registered) -> None:
         """Level the mounting with the map's up at the first sweep, give the odometry gravity, and put the map's

@@ -231,7 +231,10 @@ def test_a_suit_odometry_oriented_otherwise_than_the_pelvis_segment_is_reported(
     """The contract gives the suit segments' orientations in its model axes (x left, y up, z forward); it does not
     say how ``/mocap/odometry`` is oriented, and the method takes it for the pelvis segment's. Published in a
     ROS base_link's axes instead (x forward, y left, z up), its pelvis's up is 90 deg from the pelvis IMU's at
-    the start, and the status says so; the rig's own odometry agrees with the IMU within a degree."""
+    the start: the status says so, and the odometry's orientations are read in the segment's axes from then on
+    (the turn of the axes nearest the two orientations' difference), so that the map frame is found and the
+    capture tracked as with the rig's own odometry, which agrees with the IMU within a degree (without the
+    turn, the map frame was never found: "the first pelvis pose faces straight up or down")."""
     capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, columns=512))
     refiner = CaptureRefiner()
     if convention == "base_link axes":
@@ -242,15 +245,21 @@ def test_a_suit_odometry_oriented_otherwise_than_the_pelvis_segment_is_reported(
             return add(stamp_ns, position, matrix_to_quat(quat_to_matrix(quat) @ R_M_base))
 
         refiner.add_suit_odometry = add_rotated
-    pipeline = refiner.pipeline
+    pipeline, steps = refiner.pipeline, []
     for _, stamp_ns, points, point_ns in capture_sweeps(capture, refiner):
-        pipeline.add_sweep(points, point_ns, stamp_ns)
-        if pipeline.map_frame is not None:
-            break
+        steps += pipeline.add_sweep(points, point_ns, stamp_ns)
+    assert pipeline.map_frame is not None and len(steps) > 100
+    t = np.array([(s.stamp_ns - capture.epoch_ns) * 1e-9 for s in steps])
+    position, truth = np.array([s.pelvis[:3, 3] for s in steps]), capture.truth(t).pelvis
+    T = align_yaw_translation(position, truth, np.ones(len(t), dtype=bool))
+    assert np.sqrt(np.mean(np.sum((position @ T[:3, :3].T + T[:3, 3] - truth) ** 2, axis=1))) < 0.05
     if convention == "model axes":
-        assert pipeline.odometry_tilt_deg < 1.0 and "/mocap/odometry" not in pipeline.status
+        assert pipeline.odometry_tilt_deg < 1.0 and pipeline.odometry_axes is None
+        assert "/mocap/odometry" not in pipeline.status
     else:
-        assert abs(pipeline.odometry_tilt_deg - 90.0) < 5.0 and "/mocap/odometry" in pipeline.status
+        assert abs(pipeline.odometry_tilt_deg - 90.0) < 5.0
+        np.testing.assert_array_equal(pipeline.odometry_axes, R_L_M_FACING_X)
+        assert "/mocap/odometry" in pipeline.status and "x, y, z: +y, +z, +x" in pipeline.status
 
 
 @pytest.mark.parametrize("seed, tilt_deg", [(11, 45.0), (5, 30.0)])
