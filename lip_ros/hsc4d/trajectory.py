@@ -379,7 +379,9 @@ class TrajectoryPipeline:
     def _start_from(self, state: TrajectoryResume, ref: int) -> None:
         """The first sweep of a resumed trajectory, at ``ref`` (the suit's pose known there): the odometry starts on
         ``state``'s local map, from its pelvis pose turned as the suit's turned since and moved as the suit's moved,
-        that path turned into ``map`` by the suit world's heading there (its horizontal part by the stride scale)."""
+        that path turned into ``map`` by the suit world's heading there (its horizontal part by the stride scale).
+        The suit odometry's axes are checked first, as at a start (the state holds the pelvis in the segment's)."""
+        self._check_odometry(ref)
         T_I_P = self.suit.pelvis(ref)
         T_map_P = np.eye(4)
         T_map_P[:3, :3] = state.T_map_P[:3, :3] @ state.T_I_P[:3, :3].T @ T_I_P[:3, :3]
