@@ -190,44 +190,32 @@ def test_the_hip_clouds_put_in_the_world_with_the_true_sensor_poses_lie_on_the_s
     assert np.median(first_pose) > 2.0 * np.median(errors)
 
 
-def test_a_mount_tilt_variant_tilts_the_true_mounting_only():
-    """``mount_tilt_up_deg`` moves the true tilt (each seed still perturbs it by up to 5 deg) and nothing else of
-    the capture; a tilt off the rig's range is refused."""
-    nominal, variant = (SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, mount_tilt_up_deg=tilt))
-                        for tilt in (SiteCaptureConfig.mount_tilt_up_deg, 15.0))
-    assert abs(variant.mount.tilt_up_deg - nominal.mount.tilt_up_deg + 15.0) < 1e-9
-    assert abs(variant.mount.tilt_up_deg - 15.0) <= 5.0
-    np.testing.assert_array_equal(variant.mount.lever_m, nominal.mount.lever_m)
-    t = np.linspace(1.0, 10.0, 5)
-    np.testing.assert_array_equal(variant.truth(t).pelvis, nominal.truth(t).pelvis)
-    with pytest.raises(ValueError):
-        SiteCaptureConfig(mount_tilt_up_deg=75.0)
-
-
-def test_a_mount_spin_variant_turns_the_true_mounting_about_the_sensors_axis_only():
-    """``mount_spin_deg`` turns the true sensor about its own (spin) axis: the axis, the lever arm and the motion
-    stay, the sensor's +x turns by the spin; a spin off -180..180 is refused."""
-    nominal, variant = (SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, mount_spin_deg=spin))
-                        for spin in (0.0, 90.0))
-    R, R_spun = nominal.mount.R_M_L, variant.mount.R_M_L
-    np.testing.assert_allclose(R_spun[:, 2], R[:, 2], atol=1e-12)  # the spin axis in the pelvis frame
-    np.testing.assert_allclose(R_spun[:, 0], R[:, 1], atol=1e-12)  # +x turned 90 deg: where +y was
-    np.testing.assert_array_equal(variant.mount.lever_m, nominal.mount.lever_m)
-    t = np.linspace(1.0, 10.0, 5)
-    np.testing.assert_array_equal(variant.truth(t).pelvis, nominal.truth(t).pelvis)
-    with pytest.raises(ValueError):
-        SiteCaptureConfig(mount_spin_deg=270.0)
-
-
-def test_a_mount_lever_variant_moves_the_true_lever_arm_only():
-    """``mount_lever_m`` moves the true lever arm before the seed's perturbation (the same perturbation): on the
-    other hip, the sensor's side mirrored; the rotation and the motion stay."""
+@pytest.mark.parametrize("change", [{"mount_tilt_up_deg": 15.0}, {"mount_spin_deg": 90.0},
+                                    {"mount_lever_m": (0.15, 0.0, -0.1)}])
+def test_a_mount_variant_moves_what_it_names_of_the_true_mounting_only(change):
+    """Each mount variant moves what it names of the true mounting (each seed's perturbation stays the same) and
+    nothing else of the capture: ``mount_tilt_up_deg`` the tilt (still within 5 deg of it), ``mount_spin_deg``
+    the sensor about its own axis (the axis stays, +x turns by the spin), ``mount_lever_m`` the lever arm (on the
+    other hip: the side mirrored); the motion stays. Values off the rig's range are refused."""
     nominal = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0))
-    left = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, mount_lever_m=(0.15, 0.0, -0.1)))
-    np.testing.assert_allclose(left.mount.lever_m - nominal.mount.lever_m, [0.3, 0.0, 0.0], atol=1e-12)
-    np.testing.assert_array_equal(left.mount.R_M_L, nominal.mount.R_M_L)
+    variant = SiteCapture(SiteCaptureConfig(seed=3, seconds=14.0, **change))
+    a, b = nominal.mount, variant.mount
     t = np.linspace(1.0, 10.0, 5)
-    np.testing.assert_array_equal(left.truth(t).pelvis, nominal.truth(t).pelvis)
+    np.testing.assert_array_equal(variant.truth(t).pelvis, nominal.truth(t).pelvis)
+    if "mount_tilt_up_deg" in change:
+        assert abs(b.tilt_up_deg - a.tilt_up_deg + 15.0) < 1e-9 and abs(b.tilt_up_deg - 15.0) <= 5.0
+    elif "mount_spin_deg" in change:
+        np.testing.assert_allclose(b.R_M_L[:, 2], a.R_M_L[:, 2], atol=1e-12)  # the spin axis in the pelvis frame
+        np.testing.assert_allclose(b.R_M_L[:, 0], a.R_M_L[:, 1], atol=1e-12)  # +x turned 90 deg: where +y was
+    else:
+        np.testing.assert_array_equal(b.R_M_L, a.R_M_L)
+    if "mount_lever_m" in change:
+        np.testing.assert_allclose(b.lever_m - a.lever_m, [0.3, 0.0, 0.0], atol=1e-12)
+    else:
+        np.testing.assert_array_equal(b.lever_m, a.lever_m)
+    for wrong in ({"mount_tilt_up_deg": 75.0}, {"mount_spin_deg": 270.0}):
+        with pytest.raises(ValueError):
+            SiteCaptureConfig(**wrong)
 
 
 def test_a_suit_rate_variant_samples_the_imus_and_the_odometry_at_that_rate():
