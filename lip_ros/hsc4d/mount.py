@@ -141,6 +141,12 @@ class SpinCheck:
         """Whether the check is over."""
         return self.correction_deg is not None
 
+    @property
+    def spin_deg(self) -> float:
+        """The spin to use (deg, -180 to 180): the nominal one plus the correction found (none until decided)."""
+        spin = self.mount.spin_deg + (self.correction_deg or 0.0)
+        return float((spin + 180.0) % 360.0 - 180.0)
+
     def skip(self, status: str) -> None:
         """End the check without a reading (the mounting came from elsewhere: ``status``)."""
         self.correction_deg, self.status = 0.0, status
@@ -186,7 +192,7 @@ class SpinCheck:
             elif abs(mean) >= c.min_error_deg:
                 self.correction_deg = mean
                 self.status = (f"the ground at the start shows the LiDAR spun {mean:+.0f} deg from mount_spin_deg: "
-                               f"used {self.mount.spin_deg + mean:.0f} deg (set mount_spin_deg to it)")
+                               f"used {self.spin_deg:.0f} deg (set mount_spin_deg to it)")
             else:
                 self.correction_deg = 0.0
                 self.status = f"as configured (the ground at the start: {mean:+.1f} deg)"
@@ -216,7 +222,6 @@ class MountYawEstimator:
         self.max_correction = np.radians(max_correction_deg)
         self._cross = self._dot = self._path = 0.0
         self.windows = 0  #: windows completed
-        self.last_window_deg: float | None = None  #: the angle the last window measured, before the averaging (deg)
 
     def add(self, registered: np.ndarray, predicted: np.ndarray, axis: np.ndarray) -> float | None:
         """One sweep's registered and predicted translations (3,) in L and the body's axis (3,) in L; the
@@ -231,9 +236,7 @@ class MountYawEstimator:
         if self._path < self.min_path_m:
             return None
         self.windows += 1
-        measured = float(np.arctan2(self._cross, self._dot))
-        self.last_window_deg = float(np.degrees(measured))
-        angle = measured / min(self.windows, self.average_windows)
+        angle = float(np.arctan2(self._cross, self._dot)) / min(self.windows, self.average_windows)
         self._cross = self._dot = self._path = 0.0
         if abs(angle) < self.min_correction:
             return None

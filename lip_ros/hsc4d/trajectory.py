@@ -109,8 +109,8 @@ class TrajectoryConfig:
     max_mount_disagreement_deg: float = 3.0
     # fewer than this share of the registrations of the last ``believed_window_s`` believed says the LiDAR's motion
     # disagrees with the suit's through the mounting (a spin or tilt far from the nominal) or the scene holds ICP
-    # badly: the status says so (rig captures: all but a few in a capture believed, a sensor spun 180 deg about its
-    # axis and not told so under half)
+    # badly: the status says so (rig captures: all but a few in a capture believed; a sensor spun 180 deg about its
+    # axis with the spin check off: under half)
     min_believed_share: float = 0.5
     believed_window_s: float = 5.0
     # the suit's odometry putting the pelvis's up farther than this from its pelvis IMU's at the start says its
@@ -472,11 +472,9 @@ class TrajectoryPipeline:
 
     def _use_spin(self) -> None:
         """Spin the nominal mounting by what the ground of the first sweeps showed, if it showed a spin."""
-        turn = self.spin.correction_deg
-        if not turn:
+        if not self.spin.correction_deg:
             return
-        mount = self.config.mount
-        mount = replace(mount, spin_deg=float((mount.spin_deg + turn + 180.0) % 360.0 - 180.0))
+        mount = replace(self.config.mount, spin_deg=self.spin.spin_deg)
         self.config = replace(self.config, mount=mount)
         self._set_mount(mount.T_M_L)
 

@@ -70,8 +70,9 @@ class SiteCaptureConfig:
     def __post_init__(self) -> None:
         if (self.columns not in (512, 1024, 2048) or self.rate_hz not in (10.0, 20.0) or self.seconds <= 0
                 or not 0.0 <= self.mount_tilt_up_deg <= 60.0 or not -180.0 <= self.mount_spin_deg <= 180.0
-                or not 20.0 <= self.suit_rate_hz <= 1000.0
-                or self.suit_noise_scale < 0.0):
+                or not 20.0 <= self.suit_rate_hz <= 1000.0 or self.suit_noise_scale < 0.0
+                or (self.mount_lever_m is not None and (len(self.mount_lever_m) != 3
+                                                        or not np.isfinite(self.mount_lever_m).all()))):
             raise ValueError(f"invalid {self}")
 
     def as_dict(self) -> dict:

@@ -49,7 +49,8 @@ def test_the_spin_about_the_sensors_axis_is_read_from_the_ground(spin_deg):
     assert decided == [False] * (len(decided) - 1) + [True] and check.decided
     if abs(spin_deg) >= SpinCheckConfig().min_error_deg:
         assert abs((check.correction_deg - spin_deg + 180.0) % 360.0 - 180.0) < 0.5
-        assert "set mount_spin_deg" in check.status
+        assert -180.0 <= check.spin_deg <= 180.0 and abs((check.spin_deg - spin_deg + 180.0) % 360.0 - 180.0) < 0.5
+        assert f"used {check.spin_deg:.0f} deg (set mount_spin_deg to it)" in check.status
     else:
         assert check.correction_deg == 0.0 and check.status.startswith("as configured")
 

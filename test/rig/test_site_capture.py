@@ -213,7 +213,7 @@ def test_a_mount_variant_moves_what_it_names_of_the_true_mounting_only(change):
         np.testing.assert_allclose(b.lever_m - a.lever_m, [0.3, 0.0, 0.0], atol=1e-12)
     else:
         np.testing.assert_array_equal(b.lever_m, a.lever_m)
-    for wrong in ({"mount_tilt_up_deg": 75.0}, {"mount_spin_deg": 270.0}):
+    for wrong in ({"mount_tilt_up_deg": 75.0}, {"mount_spin_deg": 270.0}, {"mount_lever_m": (0.1, float("nan"), 0.0)}):
         with pytest.raises(ValueError):
             SiteCaptureConfig(**wrong)
 
