@@ -66,7 +66,7 @@ from kiss_icp.threshold import get_threshold_estimator
 from kiss_icp.voxelization import voxel_down_sample
 
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from lip_ros.hsc4d.mount import HipMountPrior, rotation_between
+from lip_ros.hsc4d.mount import WEARER_NEAR_M, HipMountPrior, rotation_between
 from lip_ros.hsc4d.suit_track import SuitTrack
 
 __all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "VerticalShift", "StillDetector", "OdometryStep",
@@ -176,14 +176,13 @@ class OdometryConfig:
 
 @dataclass(frozen=True, eq=False)
 class WearerFilter:
-    """The wearer's own returns: points nearer the sensor than ``near_m`` (an arm swung out: the rig's wearer
-    returns up to 0.7 m away, nothing else comes that close), and points within ``radius_m`` of the body's axis,
-    from ``below_m`` under the pelvis (the feet and the ground they stand on) to ``above_m`` over it, the body
-    placed with the mounting T_M_L (4, 4; the nominal one unless given: the trajectory gives it the mounting as
-    levelled and turned)."""
+    """The wearer's own returns: points nearer the sensor than ``near_m``, and points within ``radius_m`` of the
+    body's axis, from ``below_m`` under the pelvis (the feet and the ground they stand on) to ``above_m`` over it,
+    the body placed with the mounting T_M_L (4, 4; the nominal one unless given: the trajectory gives it the
+    mounting as levelled and turned, on the hip the start showed)."""
 
     T_M_L: np.ndarray = field(default_factory=lambda: HipMountPrior().T_M_L)
-    near_m: float = 0.9
+    near_m: float = WEARER_NEAR_M
     radius_m: float = 0.55
     below_m: float = 1.2
     above_m: float = 1.0

@@ -22,6 +22,10 @@ gives in the sensor's frame is off by up to twice the tilt, which the jump
 sync and the map frame start from: :class:`SpinCheck` finds the spin from the
 ground seen in the first sweeps, whose up lies the tilt away from the spin
 axis whatever the spin, and in the direction about it that the spin decides.
+"About 0.15 m to the side" does not say which hip, and the lever arm shows only
+when the body turns about the vertical (a walk's first corner): :class:`SideCheck`
+reads the hip from the wearer's own returns in the first sweeps, which lie
+toward the body's middle, to one side of the sensor.
 """
 
 from __future__ import annotations
@@ -35,11 +39,14 @@ from lip_ros.core.frames import hip_lidar_rotation
 from lip_ros.core.ground_plane import fit_ground_plane
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
+#: returns nearer a hip LiDAR than this are the wearer's own (an arm swung out: the rig's wearer returns up to 0.7 m
+#: away, nothing else comes that close)
+WEARER_NEAR_M = 0.9
 #: the prior of the suit's stride scale in :class:`LeverArmEstimator` (about 1; loose, it is solved for)
 _SCALE_PRIOR = 0.2
 
-__all__ = ["HipMountPrior", "rotation_between", "levelled_mount_rotation", "SpinCheckConfig", "SpinCheck",
-           "MountYawEstimator", "LeverArmEstimator", "MountRotationEstimator"]
+__all__ = ["WEARER_NEAR_M", "HipMountPrior", "rotation_between", "levelled_mount_rotation", "SpinCheckConfig",
+           "SpinCheck", "SideCheckConfig", "SideCheck", "MountYawEstimator", "LeverArmEstimator", "MountRotationEstimator"]
 
 
 @dataclass(frozen=True)
@@ -95,7 +102,8 @@ def levelled_mount_rotation(R_M_L: np.ndarray, up_M: np.ndarray, up_L: np.ndarra
 class SpinCheckConfig:
     """How the spin is read from the ground of the first sweeps (:class:`SpinCheck`)."""
 
-    min_range_m: float = 1.5  # points nearer than this are left out (the wearer's own returns)
+    min_range_m: float = 1.5  # points nearer than this are left out (the wearer's own returns; the ground at a
+    #                           hip's height starts beyond WEARER_NEAR_M)
     max_range_m: float = 6.0  # ... and farther than this (the ground near the wearer)
     tolerance_m: float = 0.04  # of a point on the ground plane
     margin_deg: float = 25.0  # the ground's up within the nominal tilt plus this of the spin axis (walls are 60+ off)
@@ -200,6 +208,91 @@ class SpinCheck:
             self.correction_deg = 0.0
             self.status = f"as configured: the ground was not read in {self._tried} sweeps"
         return self.decided
+
+
+@dataclass(frozen=True)
+class SideCheckConfig:
+    """How the hip the sensor is worn on is read from the wearer's own returns in the first sweeps
+    (:class:`SideCheck`)."""
+
+    near_m: float = WEARER_NEAR_M  # returns nearer than this are the wearer's own
+    min_points: int = 10  # a sweep with fewer of them says nothing (the rig's wearers: 0 or 15-520 a sweep)
+    min_share: float = 0.9  # ... and one where fewer than this share of them lie on one side of the sensor
+    sweeps: int = 3  # sweeps that must say the same side, all that said one agreeing
+
+    def __post_init__(self) -> None:
+        if not (self.near_m > 0.0 and self.min_points >= 1 and 0.5 < self.min_share <= 1.0 and self.sweeps >= 1):
+            raise ValueError(f"invalid {self}")
+
+
+class SideCheck:
+    """Which hip the sensor is worn on, against the nominal lever arm's side, from the wearer's own returns: a
+    wearer standing upright at the start is to one side of a hip-worn sensor, toward the body's middle, so the
+    returns nearer than ``near_m`` lie to the sensor's left (the pelvis frame's +x) when it is on the right hip,
+    and to its right when on the left. :meth:`check` reads the first sweeps once the mounting's rotation is known
+    (the spin decides which way the sensor's axes point); when ``sweeps`` of them tell a side, and all that tell
+    one agree, the side found is used: the nominal lever arm mirrored across the body's middle if it is the other
+    (:attr:`lever_m`). Otherwise (no own returns seen: the body outside the sensor's field of view or nearer than
+    its minimum range) the lever arm stays as configured, and :attr:`status` says why."""
+
+    def __init__(self, mount: HipMountPrior, config: SideCheckConfig | None = None) -> None:
+        self.mount = mount
+        self.config = config or SideCheckConfig()
+        self.lever_m: tuple[float, float, float] | None = None  #: once decided: the lever arm to use
+        self.status = "not checked yet"  #: what was found
+
+    @property
+    def decided(self) -> bool:
+        """Whether the check is over."""
+        return self.lever_m is not None
+
+    @property
+    def mirrored(self) -> bool:
+        """Whether the check put the sensor on the other hip than the nominal lever arm's."""
+        return self.lever_m is not None and self.lever_m != tuple(self.mount.lever_m)
+
+    def skip(self, status: str) -> None:
+        """End the check without a reading (the mounting came from elsewhere: ``status``)."""
+        self.lever_m, self.status = tuple(self.mount.lever_m), status
+
+    def reading(self, points: np.ndarray, R_M_L: np.ndarray) -> int | None:
+        """Which side of the sensor the wearer's own returns in one sweep (points (N, 3) in L) lie on, with the
+        sensor frame L in the pelvis frame as ``R_M_L`` (3, 3): +1 to its left (the sensor on the right hip), -1
+        to its right, None if too few of them, or not mostly to one side."""
+        c = self.config
+        points = np.asarray(points, dtype=np.float64)
+        r2 = np.einsum("na,na->n", points, points)
+        own = points[(r2 > 0.0) & (r2 < c.near_m**2)]
+        if len(own) < c.min_points:
+            return None
+        left = float(np.mean(own @ np.asarray(R_M_L)[0] > 0.0))  # M's x (left) of each return
+        return 1 if left >= c.min_share else -1 if left <= 1.0 - c.min_share else None
+
+    def check(self, sweeps: list[np.ndarray], R_M_L: np.ndarray) -> None:
+        """Decide from the first sweeps of the wearer standing (points (N, 3) in L each, non-finite ones left out)
+        with the mounting's rotation ``R_M_L`` (3, 3) as it stands."""
+        if self.decided:
+            return
+        nominal = tuple(float(v) for v in self.mount.lever_m)
+        if nominal[0] == 0.0:
+            self.skip("as configured: the nominal lever arm is not to a side")
+            return
+        readings = [self.reading(p[np.isfinite(p).all(axis=1)], R_M_L) for p in sweeps]
+        said = [r for r in readings if r is not None]
+        if len(said) < self.config.sweeps:
+            self.skip(f"as configured: the wearer's own returns told a side in {len(said)} of {len(sweeps)} sweeps")
+            return
+        if len(set(said)) > 1:
+            self.skip(f"as configured: the wearer's own returns told both sides ({said.count(1)} sweeps the right "
+                      f"hip, {said.count(-1)} the left)")
+            return
+        hip = "right" if said[0] > 0 else "left"  # the returns to the sensor's left: it is on the right hip
+        if (nominal[0] < 0.0) == (said[0] > 0):  # M's x is left: a right hip has the lever's x negative
+            self.lever_m, self.status = nominal, f"as configured (the wearer's own returns: the {hip} hip)"
+            return
+        self.lever_m = (-nominal[0], nominal[1], nominal[2])
+        self.status = (f"the wearer's own returns at the start put the LiDAR on the {hip} hip, mount_lever_m on the "
+                       f"other: used [{', '.join(f'{v:.3f}' for v in self.lever_m)}] (set mount_lever_m to it)")
 
 
 class MountYawEstimator:

@@ -59,6 +59,8 @@ from lip_ros.hsc4d.mount import (
     LeverArmEstimator,
     MountRotationEstimator,
     MountYawEstimator,
+    SideCheck,
+    SideCheckConfig,
     SpinCheck,
     SpinCheckConfig,
     levelled_mount_rotation,
@@ -95,6 +97,7 @@ class TrajectoryConfig:
     jump: JumpSyncConfig = field(default_factory=JumpSyncConfig)
     site_map: SiteMapConfig = field(default_factory=SiteMapConfig)
     spin_check: SpinCheckConfig = field(default_factory=SpinCheckConfig)
+    side_check: SideCheckConfig = field(default_factory=SideCheckConfig)
     hold_s: float = 15.0  # sweeps held while waiting for the jump (about 0.8 MB each at 1024 x 64)
     map_after_s: float = 1.0  # registered capture before the map frame is fixed (the wearer stands still)
     scale_window_s: float = 20.0  # the suit's stride scale is measured over this much believed walking
@@ -213,6 +216,7 @@ class TrajectoryPipeline:
         self.lever = LeverArmEstimator(c.mount.lever_m)
         self.hand_eye = MountRotationEstimator()  #: the mounting from the walk's turns, a check on the levelled one
         self.spin = SpinCheck(c.mount, c.spin_check, c.seed)  #: the sensor's spin from the ground of the first sweeps
+        self.side = SideCheck(c.mount, c.side_check)  #: the hip it is worn on from the wearer's own returns in them
         self.site = SiteMap(c.site_map)  #: the whole site, placed by the live odometry (S_live)
         self.mapped = 0  #: steps put in the site map
         self.counts: Counter[str] = Counter()
@@ -272,8 +276,10 @@ class TrajectoryPipeline:
         if check is not None and check > self.config.max_mount_disagreement_deg:
             return (f"tracking; the walk's turns put the body's axis {check:.1f} deg from the mounting levelled on "
                     "the ground at the start: that ground was not level, or the mounting moved")
-        if self.spin.correction_deg:
-            return f"tracking; {self.spin.status}"
+        found = [check.status for check, used in ((self.spin, self.spin.correction_deg), (self.side,
+                                                                                          self.side.mirrored)) if used]
+        if found:
+            return f"tracking; {'; '.join(found)}"
         share = self.believed_share
         if share is not None and share < self.config.min_believed_share:
             return (f"tracking; only {100 * share:.0f} % of the last {self.config.believed_window_s:.0f} s' "
@@ -374,6 +380,7 @@ class TrajectoryPipeline:
         self.stride_scale.value = state.stride_scale
         self.mount_levelled_deg, self.mount_yaw_deg = state.mount_levelled_deg, state.mount_yaw_deg
         self.spin.skip("as saved (resumed)")
+        self.side.skip("as saved (resumed)")
         self._resume = state
 
     def _start_from(self, state: TrajectoryResume, ref: int) -> None:
@@ -448,11 +455,12 @@ class TrajectoryPipeline:
 
     def _wait_for_jump(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> None:
         """Hold the sweep; give the jump sync the sensor's height above the ground in it, once the mounting's spin
-        is checked (the sweeps held until then, in order, when it is)."""
+        and side are checked (the sweeps held until then, in order, when they are)."""
         if self.spin.decided:
             self._sweep_height(points, point_ns)
         elif self.spin.add(points):
             self._use_spin()
+            self._use_side([held_points for held_points, _, _ in self._held] + [points])
             for held_points, held_ns, _ in self._held:
                 self._sweep_height(held_points, held_ns)
             self._sweep_height(points, point_ns)
@@ -477,6 +485,17 @@ class TrajectoryPipeline:
         mount = replace(self.config.mount, spin_deg=self.spin.spin_deg)
         self.config = replace(self.config, mount=mount)
         self._set_mount(mount.T_M_L)
+
+    def _use_side(self, sweeps: list[np.ndarray]) -> None:
+        """Put the nominal mounting on the hip the wearer's own returns in the first ``sweeps`` showed, if it is
+        the other (the lever arm mirrored across the body's middle, its estimate starting from there)."""
+        self.side.check(sweeps, self.config.mount.R_M_L)
+        if not self.side.mirrored:
+            return
+        mount = replace(self.config.mount, lever_m=self.side.lever_m)
+        self.config = replace(self.config, mount=mount)
+        self._set_mount(mount.T_M_L)
+        self.lever = LeverArmEstimator(mount.lever_m)
 
     def _register(self, points: np.ndarray, point_ns: np.ndarray, stamp_ns: int) -> list[TrajectoryStep]:
         """Register and fuse one sweep; the steps that became ready."""

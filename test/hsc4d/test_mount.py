@@ -1,5 +1,5 @@
-"""The hip mounting's estimate (lip_ros.hsc4d.mount): its spin from the ground at the start, levelled with gravity
-at the start, turned about the body's axis by walking, its lever arm from the body's turns, its rotation from the
+"""The hip mounting's estimate (lip_ros.hsc4d.mount): its spin from the ground at the start, its hip from the wearer's
+own returns at the start, levelled with gravity at the start, turned about the body's axis by walking, its lever arm from the body's turns, its rotation from the
 walk's turns (hand-eye)."""
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ from lip_ros.hsc4d.mount import (
     LeverArmEstimator,
     MountRotationEstimator,
     MountYawEstimator,
+    SideCheck,
+    SideCheckConfig,
     SpinCheck,
     SpinCheckConfig,
     levelled_mount_rotation,
@@ -74,6 +76,72 @@ def test_the_spin_stays_as_configured_when_the_ground_does_not_tell():
     skipped.skip("as saved (resumed)")
     assert skipped.decided and skipped.add(_ground_in_lidar(HipMountPrior(spin_deg=180.0), rng))
     assert skipped.correction_deg == 0.0
+
+
+def _own_returns_in_lidar(mount: HipMountPrior, body_side: float, rng: np.random.Generator, count: int = 200
+                          ) -> np.ndarray:
+    """Points (N, 3) in L: ``count`` returns of the wearer 0.65-0.85 m from the sensor, 0.2-0.6 m to its
+    ``body_side`` (+1: left, the pelvis frame's +x; 0: half on each side), and ground 1.5-6 m away, the sensor mounted
+    as ``mount`` (its rotation) 1 m above it."""
+    side = np.where(rng.random(count) < 0.5, 1.0, -1.0) if body_side == 0 else np.full(count, body_side)
+    lateral = side * rng.uniform(0.2, 0.6, count)
+    rest = rng.normal(size=(count, 2))
+    rest *= (np.sqrt(rng.uniform(0.65**2, 0.85**2, count) - lateral**2) / np.linalg.norm(rest, axis=1))[:, None]
+    own_M = np.column_stack([lateral, rest])  # (x left, y up, z forward) from the sensor
+    ground = _ground_in_lidar(mount, rng)
+    ground = ground[np.linalg.norm(ground, axis=1) > 1.5]
+    return np.concatenate([own_M @ mount.R_M_L, ground])  # M -> L: R_M_L^T p, as rows
+
+
+@pytest.mark.parametrize(("worn", "spin_deg"), [("right", 0.0), ("left", 0.0), ("left", 180.0)])
+def test_the_hip_the_sensor_is_worn_on_is_read_from_the_wearers_own_returns(worn, spin_deg):
+    """The wearer stands toward the body's middle of a hip-worn sensor: its own returns lie to the sensor's left
+    on the right hip (the nominal lever arm's), to its right on the left hip, in the pelvis frame's axes through the
+    mounting's rotation (spun or not). Three agreeing sweeps decide: on the nominal hip the lever arm stays; on
+    the other it is mirrored across the body's middle, and the status says to set ``mount_lever_m``."""
+    rng = np.random.default_rng(3)
+    mount = HipMountPrior(spin_deg=spin_deg)
+    body_side = 1.0 if worn == "right" else -1.0
+    sweeps = [_own_returns_in_lidar(mount, body_side, rng) for _ in range(SideCheckConfig().sweeps)]
+    check = SideCheck(HipMountPrior())
+    assert check.reading(sweeps[0], mount.R_M_L) == body_side and not check.decided
+    check.check(sweeps, mount.R_M_L)
+    assert check.decided
+    if worn == "right":
+        assert check.lever_m == HipMountPrior().lever_m and not check.mirrored
+        assert check.status == "as configured (the wearer's own returns: the right hip)"
+    else:
+        assert check.lever_m == (0.15, 0.0, -0.1) and check.mirrored
+        assert "on the left hip" in check.status and "(set mount_lever_m to it)" in check.status
+
+
+def test_the_hip_stays_as_configured_when_the_wearers_own_returns_do_not_tell():
+    """No own returns (the body outside the field of view or nearer than the sensor's minimum range), returns on
+    both sides in every sweep, sweeps telling both hips, a nominal lever arm at the body's middle, or a check
+    skipped: the lever arm stays as configured, and the status says why. Non-finite points are left out."""
+    rng = np.random.default_rng(4)
+    mount = HipMountPrior()
+    cases = {
+        "told a side in 0 of 4 sweeps": [_ground_in_lidar(mount, rng) for _ in range(4)],
+        "told a side in 0 of 3 sweeps": [_own_returns_in_lidar(mount, 0.0, rng) for _ in range(3)],
+        "told both sides (2 sweeps the right hip, 1 the left)":
+            [_own_returns_in_lidar(mount, side, rng) for side in (1.0, -1.0, 1.0)],
+    }
+    for status, sweeps in cases.items():
+        check = SideCheck(mount)
+        check.check(sweeps, mount.R_M_L)
+        assert check.lever_m == mount.lever_m and not check.mirrored and status in check.status
+    middle = SideCheck(HipMountPrior(lever_m=(0.0, 0.0, -0.15)))
+    middle.check([_own_returns_in_lidar(mount, -1.0, rng) for _ in range(3)], mount.R_M_L)
+    assert middle.lever_m == (0.0, 0.0, -0.15) and "not to a side" in middle.status
+    nan = np.full((50, 3), np.nan)
+    found = SideCheck(mount)
+    found.check([np.concatenate([_own_returns_in_lidar(mount, -1.0, rng), nan]) for _ in range(3)], mount.R_M_L)
+    assert found.mirrored
+    skipped = SideCheck(mount)
+    skipped.skip("as saved (resumed)")
+    skipped.check([_own_returns_in_lidar(mount, -1.0, rng) for _ in range(3)], mount.R_M_L)
+    assert skipped.decided and not skipped.mirrored and skipped.status == "as saved (resumed)"
 
 
 def test_rotation_between_takes_one_direction_onto_another():

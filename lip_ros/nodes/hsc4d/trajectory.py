@@ -450,8 +450,11 @@ class TrajectoryNode(GraphNode):
         start = time.monotonic()
         spin_checked = self.pipeline.spin.decided
         steps = self.pipeline.add_sweep(sweep.points, sweep.point_ns, sweep.stamp_ns, max_register=2)
-        if not spin_checked and self.pipeline.spin.correction_deg:
-            self.get_logger().warning(f"mounting: {self.pipeline.spin.status}")
+        if not spin_checked:
+            for check, used in ((self.pipeline.spin, self.pipeline.spin.correction_deg),
+                                (self.pipeline.side, self.pipeline.side.mirrored)):
+                if used:
+                    self.get_logger().warning(f"mounting: {check.status}")
         budget = _CATCH_UP_SHARE / self.input_rate_hz(_LIDAR)  # of the period the sweeps' stamps show
         while self.pipeline.backlog and self.pipeline.offset_ns is not None and time.monotonic() - start < budget:
             steps += self.pipeline.catch_up(1)
@@ -520,6 +523,7 @@ class TrajectoryNode(GraphNode):
             "suit odometry's pelvis up vs its pelvis IMU's (deg)": f"{pipe.odometry_tilt_deg:.2f}",
             "mounting turned about the body by (deg)": f"{pipe.mount_yaw_deg:.2f}",
             "mounting's spin (the ground at the start)": pipe.spin.status,
+            "mounting's hip (the wearer's own returns at the start)": pipe.side.status,
             "body axis, walk's turns vs levelled (deg)": _mount_check(pipe),
             "lever arm in the pelvis frame (m)": " ".join(f"{v:+.3f}" for v in pipe.lever_m),
             "lever arm sigma (m)": " ".join(f"{v:.3f}" for v in pipe.lever.sigma_m),
