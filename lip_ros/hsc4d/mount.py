@@ -46,7 +46,8 @@ WEARER_NEAR_M = 0.9
 _SCALE_PRIOR = 0.2
 
 __all__ = ["WEARER_NEAR_M", "HipMountPrior", "rotation_between", "levelled_mount_rotation", "SpinCheckConfig",
-           "SpinCheck", "SideCheckConfig", "SideCheck", "MountYawEstimator", "LeverArmEstimator", "MountRotationEstimator"]
+           "SpinCheck", "SideCheckConfig", "SideCheck", "MountYawEstimator", "LeverArmEstimator",
+           "MountRotationEstimator"]
 
 
 @dataclass(frozen=True)

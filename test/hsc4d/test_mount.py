@@ -1,6 +1,6 @@
 """The hip mounting's estimate (lip_ros.hsc4d.mount): its spin from the ground at the start, its hip from the wearer's
-own returns at the start, levelled with gravity at the start, turned about the body's axis by walking, its lever arm from the body's turns, its rotation from the
-walk's turns (hand-eye)."""
+own returns at the start, levelled with gravity at the start, turned about the body's axis by walking, its lever arm
+from the body's turns, its rotation from the walk's turns (hand-eye)."""
 
 from __future__ import annotations
 
