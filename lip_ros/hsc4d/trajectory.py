@@ -276,15 +276,15 @@ class TrajectoryPipeline:
         if check is not None and check > self.config.max_mount_disagreement_deg:
             return (f"tracking; the walk's turns put the body's axis {check:.1f} deg from the mounting levelled on "
                     "the ground at the start: that ground was not level, or the mounting moved")
-        found = [check.status for check, used in ((self.spin, self.spin.correction_deg), (self.side,
-                                                                                          self.side.mirrored)) if used]
-        if found:
-            return f"tracking; {'; '.join(found)}"
+        said = [check.status for check, used in ((self.spin, self.spin.correction_deg), (self.side,
+                                                                                         self.side.mirrored)) if used]
         share = self.believed_share
         if share is not None and share < self.config.min_believed_share:
-            return (f"tracking; only {100 * share:.0f} % of the last {self.config.believed_window_s:.0f} s' "
-                    "registrations believed: the LiDAR moves otherwise than the suit through the mounting (is "
-                    "mount_spin_deg, where the LiDAR's +x points, right?), or the scene gives ICP little to hold")
+            said.append(f"only {100 * share:.0f} % of the last {self.config.believed_window_s:.0f} s' registrations "
+                        "believed: the LiDAR moves otherwise than the suit through the mounting (is mount_spin_deg, "
+                        "where the LiDAR's +x points, right?), or the scene gives ICP little to hold")
+        if said:
+            return f"tracking; {'; '.join(said)}"
         return f"tracking; catching up with {len(self._held)} sweeps" if self._held else "tracking"
 
     @property
