@@ -25,8 +25,10 @@ Writes DIR/metrics.json and DIR/trajectories.png (per capture: top view and
 height over time, the five trajectories against the truth). A capture the
 live pipeline does not pose sweep by sweep (the jump not synced, ...) is
 reported as lost and left out of the means; the exit status is then 1.
-Rig variants: ``--mount-tilt-up DEG`` (the hip LiDAR's true tilt), ``--suit-rate HZ`` (the suit's rate),
-``--suit-noise-scale X`` (the suit's IMU errors X times the rig's).
+Rig variants (as ``lip_rig site-bag`` takes them, ``lip_ros.tools.site_variants``): ``--mount-tilt-up DEG``
+(the hip LiDAR's true tilt), ``--mount-spin DEG`` (turned about its own axis), ``--mount-lever X Y Z`` (its
+lever arm: the other hip), ``--suit-rate HZ`` (the suit's rate), ``--suit-noise-scale X`` (the suit's IMU errors X
+times the rig's).
 Held-out seeds: 1000 and up (development used 0-20).
 """
 
@@ -45,7 +47,8 @@ from lip_ros.hsc4d import evaluation as ev
 from lip_ros.hsc4d.lidar_odometry import OdometryConfig
 from lip_ros.hsc4d.mount import HipMountPrior, LeverArmEstimator
 from lip_ros.hsc4d.trajectory import RATE_CAPPED, TrajectoryConfig
-from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
+from lip_ros.rig.site_capture import SiteCapture
+from lip_ros.tools.site_variants import add_site_arguments, site_capture_config
 
 _LABELS = {"baseline1_suit": "Baseline1 (suit)", "baseline2_lidar": "Baseline2 (kiss-icp)",
            "lidar_with_suit": "LiDAR odo. + suit", "live": "live graph",
@@ -123,27 +126,11 @@ def main(argv: list[str] | None = None) -> int:
     """Command line."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[1000, 1001, 1002])
-    parser.add_argument("--seconds", type=float, default=90.0)
-    parser.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=1024)
-    parser.add_argument("--rate", type=float, choices=(10.0, 20.0), default=10.0)
+    add_site_arguments(parser)
     parser.add_argument("--max-registration-hz", type=float, default=OdometryConfig.max_rate_hz,
                         help="sweeps registered at most this often, the others posed by the suit's motion (0: all)")
-    parser.add_argument("--mount-tilt-up", type=float, default=SiteCaptureConfig.mount_tilt_up_deg, metavar="DEG",
-                        help="a rig variant: the hip LiDAR's true tilt up (before each seed's +-5 deg); the method is "
-                             "told the nominal 30 deg")
-    parser.add_argument("--mount-spin", type=float, default=SiteCaptureConfig.mount_spin_deg, metavar="DEG",
-                        help="a rig variant: the hip LiDAR turned about its own spin axis by DEG (where its +x, the "
-                             "connector, points; 0: where the body faces)")
-    parser.add_argument("--mount-lever", type=float, nargs=3, metavar=("X", "Y", "Z"),
-                        help="a rig variant: the hip LiDAR's lever arm in the pelvis frame (m; x left, y up, z "
-                             "forward), e.g. 0.15 0 -0.1 for the left hip; the method is told the nominal right hip")
     parser.add_argument("--nominal-spin", type=float, default=HipMountPrior.spin_deg, metavar="DEG",
                         help="the method's nominal spin of the hip LiDAR (params/hsc4d.yaml's mount_spin_deg)")
-    parser.add_argument("--suit-rate", type=float, default=SiteCaptureConfig.suit_rate_hz, metavar="HZ",
-                        help="a rig variant: the suit's IMUs and odometry at this rate; the method is told 100 Hz")
-    parser.add_argument("--suit-noise-scale", type=float, default=SiteCaptureConfig.suit_noise_scale, metavar="X",
-                        help="a rig variant: the suit's IMU errors (noise, biases, tilt and heading errors) X times "
-                             "the rig's DOT-like ones")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     config = TrajectoryConfig(mount=HipMountPrior(spin_deg=args.nominal_spin),
@@ -152,12 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     runs, report = [], {}
     for seed in args.seeds:
         t0 = time.perf_counter()
-        capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=args.seconds, columns=args.columns,
-                                                rate_hz=args.rate, mount_tilt_up_deg=args.mount_tilt_up,
-                                                mount_spin_deg=args.mount_spin,
-                                                mount_lever_m=args.mount_lever and tuple(args.mount_lever),
-                                                suit_rate_hz=args.suit_rate,
-                                                suit_noise_scale=args.suit_noise_scale))
+        capture = SiteCapture(site_capture_config(args, seed))
 
         def progress(k: int, n: int, seed: int = seed) -> None:
             if k % 100 == 0 or k == n - 1:

@@ -3,7 +3,8 @@
   lip_rig make-bag --scenario walk --seconds 20 --seed 3 --out DIR
   lip_rig inspect DIR [--plot PNG]
   lip_rig site --seed 3 [--walk 90] [--plot PNG]     (a scene with height of the HSC4D rig, a walk through it)
-  lip_rig site-bag --seed 3 --seconds 90 --out DIR   (an HSC4D capture: hip LiDAR, suit, its odometry)
+  lip_rig site-bag --seed 3 --seconds 90 --out DIR   (an HSC4D capture: hip LiDAR, suit, its odometry; the rig
+                                                     variants of hsc4d_eval: --mount-lever 0.15 0 -0.1, ...)
   lip_rig faults IN OUT --fault imu_silent 6 3 [--fault ...] [--imu TOPIC]   (IN with faults: kind, start s, seconds)
 """
 
@@ -18,6 +19,7 @@ from lip_ros.rig.capture import SENSORS, CaptureConfig, CaptureSession
 from lip_ros.rig.faults import FAULT_KINDS, ONE_IMU_FAULTS, FaultSpec, write_faulty_bag
 from lip_ros.rig.motion import SCENARIOS
 from lip_ros.rig.site_capture import SiteCaptureConfig
+from lip_ros.tools.site_variants import add_site_arguments, site_capture_config
 
 
 def _make_bag(args: argparse.Namespace) -> int:
@@ -76,14 +78,13 @@ def _site(args: argparse.Namespace) -> int:
 
 def _site_bag(args: argparse.Namespace) -> int:
     from lip_ros.rig.site_bag import write_site_bag
-    from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
+    from lip_ros.rig.site_capture import SiteCapture
 
     if args.out.exists():
         print(f"lip_rig: {args.out} exists; choose a new directory", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    capture = SiteCapture(SiteCaptureConfig(seed=args.seed, seconds=args.seconds, columns=args.columns,
-                                            rate_hz=args.rate, suit_rate_hz=args.suit_rate))
+    capture = SiteCapture(site_capture_config(args, args.seed))
     counts = write_site_bag(capture, args.out, progress=not args.quiet)
     wall = time.perf_counter() - t0
     size = sum(f.stat().st_size for f in args.out.iterdir()) / 1e6
@@ -156,11 +157,7 @@ def parser() -> argparse.ArgumentParser:
     t.set_defaults(func=_site)
     b = sub.add_parser("site-bag", help="simulate an HSC4D capture (hip LiDAR, suit, odometry) as an MCAP bag")
     b.add_argument("--seed", type=int, default=SiteCaptureConfig.seed)
-    b.add_argument("--seconds", type=float, default=SiteCaptureConfig.seconds, help="capture length")
-    b.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=SiteCaptureConfig.columns)
-    b.add_argument("--rate", type=float, choices=(10.0, 20.0), default=SiteCaptureConfig.rate_hz, help="Hz")
-    b.add_argument("--suit-rate", type=float, default=SiteCaptureConfig.suit_rate_hz, metavar="HZ",
-                   help="the suit's IMUs and odometry at this rate (a variant of the contract's 100 Hz)")
+    add_site_arguments(b)
     b.add_argument("--out", type=Path, required=True, help="bag directory to create")
     b.add_argument("--quiet", action="store_true", help="no progress output")
     b.set_defaults(func=_site_bag)

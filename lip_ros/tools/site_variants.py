@@ -1,0 +1,41 @@
+"""The HSC4D rig's capture and its variants as command-line options, shared by ``lip_rig site-bag`` and
+``hsc4d_eval`` (the same capture either way: a bag for the node graph, or the ROS-free evaluation)."""
+
+from __future__ import annotations
+
+import argparse
+
+from lip_ros.rig.site_capture import SiteCaptureConfig
+
+__all__ = ["add_site_arguments", "site_capture_config"]
+
+
+def add_site_arguments(parser: argparse.ArgumentParser) -> None:
+    """The capture's length, the LiDAR's columns and rate, and the rig variants (the hip LiDAR's true mounting,
+    the suit's rate and noise), each defaulting to the rig's own."""
+    d = SiteCaptureConfig
+    parser.add_argument("--seconds", type=float, default=d.seconds, help="capture length")
+    parser.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=d.columns)
+    parser.add_argument("--rate", type=float, choices=(10.0, 20.0), default=d.rate_hz, help="LiDAR rate, Hz")
+    parser.add_argument("--mount-tilt-up", type=float, default=d.mount_tilt_up_deg, metavar="DEG",
+                        help="a rig variant: the hip LiDAR's true tilt up (before each seed's +-5 deg); the method is "
+                             "told the nominal 30 deg")
+    parser.add_argument("--mount-spin", type=float, default=d.mount_spin_deg, metavar="DEG",
+                        help="a rig variant: the hip LiDAR turned about its own spin axis by DEG (where its +x, the "
+                             "connector, points; 0: where the body faces)")
+    parser.add_argument("--mount-lever", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                        help="a rig variant: the hip LiDAR's lever arm in the pelvis frame (m; x left, y up, z "
+                             "forward), e.g. 0.15 0 -0.1 for the left hip; the method is told the nominal right hip")
+    parser.add_argument("--suit-rate", type=float, default=d.suit_rate_hz, metavar="HZ",
+                        help="a rig variant: the suit's IMUs and odometry at this rate; the method is told 100 Hz")
+    parser.add_argument("--suit-noise-scale", type=float, default=d.suit_noise_scale, metavar="X",
+                        help="a rig variant: the suit's IMU errors (noise, biases, tilt and heading errors) X times "
+                             "the rig's DOT-like ones")
+
+
+def site_capture_config(args: argparse.Namespace, seed: int) -> SiteCaptureConfig:
+    """The capture of ``seed`` with the options of :func:`add_site_arguments`."""
+    return SiteCaptureConfig(seed=seed, seconds=args.seconds, columns=args.columns, rate_hz=args.rate,
+                             mount_tilt_up_deg=args.mount_tilt_up, mount_spin_deg=args.mount_spin,
+                             mount_lever_m=args.mount_lever and tuple(args.mount_lever), suit_rate_hz=args.suit_rate,
+                             suit_noise_scale=args.suit_noise_scale)

@@ -1,0 +1,26 @@
+"""The HSC4D rig's capture options shared by ``lip_rig site-bag`` and ``hsc4d_eval`` (lip_ros.tools.site_variants)."""
+
+from __future__ import annotations
+
+import argparse
+
+from lip_ros.rig.site_capture import SiteCaptureConfig
+from lip_ros.tools.site_variants import add_site_arguments, site_capture_config
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    add_site_arguments(parser)
+    return parser.parse_args(argv)
+
+
+def test_no_options_are_the_rigs_own_capture_and_each_option_sets_its_variant():
+    """Without options the capture of a seed is the rig's own (SiteCaptureConfig's defaults); each option sets the
+    field it names, so a bag (``lip_rig site-bag``) and the ROS-free evaluation (``hsc4d_eval``) of the same
+    options and seed are the same capture."""
+    assert site_capture_config(_parse([]), 3) == SiteCaptureConfig(seed=3)
+    args = _parse(["--seconds", "20", "--columns", "512", "--rate", "20", "--mount-tilt-up", "15", "--mount-spin",
+                   "180", "--mount-lever", "0.15", "0", "-0.1", "--suit-rate", "240", "--suit-noise-scale", "4"])
+    assert site_capture_config(args, 1000) == SiteCaptureConfig(
+        seed=1000, seconds=20.0, columns=512, rate_hz=20.0, mount_tilt_up_deg=15.0, mount_spin_deg=180.0,
+        mount_lever_m=(0.15, 0.0, -0.1), suit_rate_hz=240.0, suit_noise_scale=4.0)
