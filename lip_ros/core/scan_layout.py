@@ -25,6 +25,7 @@ points.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -53,13 +54,13 @@ class ScanLayout:
     row_elevation_rad: np.ndarray  # (H,) each row's elevation (NaN for rows without returns)
     agreement: float  # mean resultant length of the azimuth fit's residuals (1 = exact)
 
-    @property
+    @cached_property  # read per frame by the segmentation: the layout's fields never change
     def row_spacing_rad(self) -> float:
         """The typical elevation step between neighbouring rows (median over neighbours that both have returns)."""
         steps = np.abs(np.diff(self.row_elevation_rad))
         return float(np.median(steps[np.isfinite(steps)]))
 
-    @property
+    @cached_property
     def row_down(self) -> int:
         """+1 if the rows look lower as their index grows (Ouster's order: row 0 the highest beam), -1 if higher."""
         steps = np.diff(self.row_elevation_rad)
