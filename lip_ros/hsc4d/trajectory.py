@@ -98,6 +98,7 @@ class TrajectoryConfig:
     site_map: SiteMapConfig = field(default_factory=SiteMapConfig)
     spin_check: SpinCheckConfig = field(default_factory=SpinCheckConfig)
     side_check: SideCheckConfig = field(default_factory=SideCheckConfig)
+    check_mount: bool = True  # find the sensor's spin and hip from the first sweeps (False: the mounting as given)
     hold_s: float = 15.0  # sweeps held while waiting for the jump (about 0.8 MB each at 1024 x 64)
     map_after_s: float = 1.0  # registered capture before the map frame is fixed (the wearer stands still)
     scale_window_s: float = 20.0  # the suit's stride scale is measured over this much believed walking
@@ -217,6 +218,9 @@ class TrajectoryPipeline:
         self.hand_eye = MountRotationEstimator()  #: the mounting from the walk's turns, a check on the levelled one
         self.spin = SpinCheck(c.mount, c.spin_check, c.seed)  #: the sensor's spin from the ground of the first sweeps
         self.side = SideCheck(c.mount, c.side_check)  #: the hip it is worn on from the wearer's own returns in them
+        if not c.check_mount:
+            self.spin.skip("as configured (not checked: check_mount false)")
+            self.side.skip("as configured (not checked: check_mount false)")
         self.site = SiteMap(c.site_map)  #: the whole site, placed by the live odometry (S_live)
         self.mapped = 0  #: steps put in the site map
         self.counts: Counter[str] = Counter()

@@ -171,6 +171,9 @@ class TrajectoryNode(GraphNode):
                                 "connector, points; 0 where the body faces, 180 with the connector to the back (a "
                                 "tilted sensor spun 30 deg or more from it is found from the ground at the start "
                                 "and used, with a WARN)"),
+        "check_mount": Param("find the LiDAR's spin (the ground) and the hip it is worn on (the wearer's own "
+                             "returns) from the first sweeps, and use them where they differ from the mount_* "
+                             "values, with a WARN (false: the mounting exactly as set)"),
         "hold_s": Param("sweeps held while waiting for the jump (older ones are dropped and counted)", positive),
         "map_after_s": Param("registered capture (the wearer standing still) before the map frame is fixed",
                              non_negative),
@@ -192,7 +195,8 @@ class TrajectoryNode(GraphNode):
                 mount=HipMountPrior(tuple(map(float, p["mount_lever_m"])), float(p["mount_tilt_up_deg"]),
                                     float(p["mount_spin_deg"])),
                 odometry=OdometryConfig(max_rate_hz=float(p["max_registration_hz"])),
-                hold_s=float(p["hold_s"]), map_after_s=float(p["map_after_s"]), suit_rate_hz=float(p["suit_rate_hz"]))
+                hold_s=float(p["hold_s"]), map_after_s=float(p["map_after_s"]), suit_rate_hz=float(p["suit_rate_hz"]),
+                check_mount=bool(p["check_mount"]))
         except ValueError as exc:
             raise ParameterError(str(exc)) from exc
         self.pipeline = TrajectoryPipeline(self._config)
