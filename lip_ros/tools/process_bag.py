@@ -81,6 +81,7 @@ from lip_ros.hsc4d.sensors import (
 )
 from lip_ros.lip.calibration import load_calibration
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
+from lip_ros.nodes.hsc4d import MOUNT_HIP_VALUE, MOUNT_SPIN_VALUE, OFFSET_VALUE
 from lip_ros.nodes.lip import CALIBRATION_NODE_NAME, DOT_LATENCY_VALUE
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
@@ -99,7 +100,6 @@ __all__ = ["main", "ProcessSummary", "summarize_outputs", "Branch", "LIP", "HSC4
 
 MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their stamps are this close
 CALIBRATION_FRAMES = f"{CALIBRATION_NODE_NAME}: frames"  # ... with the DOT latencies
-OFFSET_VALUE = "suit clock offset (ms)"  # of the HSC4D trajectory node's frames status
 CATCH_UP_PREFIX = "catch_up_latency_ms_"  # ... its latency of the sweeps that waited behind the backlog
 #: after every frame is accounted for, how long the HSC4D graph may take to settle: the last sweep waiting for the
 #: suit (1 s) in the trajectory node, then on its way to the body node, waiting there (1 s), the partial window
@@ -186,6 +186,7 @@ class ProcessSummary:
     rate: float = 1.0  # the player's speed factor
     hsc4d: Hsc4dAccuracy | None = None  # HSC4D: against the rig's truth
     offset_ms: str = ""  # HSC4D: the suit's clock offset the graph found
+    mounting: str = ""  # HSC4D: what the checks of the hip LiDAR's mounting at the start found
     catch_up_ms: dict[str, float] = field(default_factory=dict)  # HSC4D: latency of sweeps behind the backlog
     refinement: str = ""  # HSC4D --refine: what and how fast
 
@@ -206,6 +207,8 @@ class ProcessSummary:
                        + ", ".join(f"{k} {v:.1f} ms" for k, v in self.catch_up_ms.items()))
         if self.offset_ms:
             out.append(f"suit clock offset found from the jump: {self.offset_ms} ms")
+        if self.mounting:
+            out.append(f"hip LiDAR's mounting checked at the start: {self.mounting}")
         if self.refinement:
             out.append(self.refinement)
         if self.hsc4d is not None:
@@ -260,6 +263,10 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined
     if branch is HSC4D:
         offset = next((v.get(OFFSET_VALUE) for v in last.values() if OFFSET_VALUE in v), "")
         summary.offset_ms = "" if offset in ("", "unknown") else offset
+        checks = next((v for v in last.values() if MOUNT_SPIN_VALUE in v), {})
+        summary.mounting = "; ".join(f"{what} {checks[key]}" for what, key in (("spin:", MOUNT_SPIN_VALUE),
+                                                                               ("hip:", MOUNT_HIP_VALUE))
+                                     if key in checks)
         summary.catch_up_ms = _percentiles(last[branch.latency_status], CATCH_UP_PREFIX)
         summary.hsc4d = hsc4d_accuracy(inputs, outputs, round(float(offset) * 1e6) if summary.offset_ms else None,
                                        refined)

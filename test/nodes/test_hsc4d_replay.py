@@ -68,6 +68,9 @@ def test_every_sweep_becomes_a_body_pose(replay):
         last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
     trajectory = last["hsc4d_trajectory_node: frames"]
     assert trajectory.level == 0 and trajectory.message == "tracking", trajectory
+    # the rig's own mounting: the checks at the start leave it as configured, and the summary says what they found
+    assert "hip LiDAR's mounting checked at the start: spin: as configured" in stdout, stdout
+    assert "; hip: as configured" in stdout, stdout
     assert "body axis, walk's turns vs levelled (deg)" in trajectory.values  # the hand-eye check, or its progress
     for name in ("hsc4d_trajectory_node: suit pelvis imu", "hsc4d_body_node: suit left_foot"):  # none lost
         assert int(last[name].values["accepted"]) == 10 * frames_in, last[name]

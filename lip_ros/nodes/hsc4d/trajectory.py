@@ -92,7 +92,13 @@ from lip_ros.nodes.base import (
     suit_input,
     tf_publisher,
 )
-from lip_ros.nodes.hsc4d import FUSED_ODOMETRY_QOS, HSC4D_PARAMS_FILE
+from lip_ros.nodes.hsc4d import (
+    FUSED_ODOMETRY_QOS,
+    HSC4D_PARAMS_FILE,
+    MOUNT_HIP_VALUE,
+    MOUNT_SPIN_VALUE,
+    OFFSET_VALUE,
+)
 
 __all__ = ["TrajectoryNode", "main"]
 
@@ -522,12 +528,12 @@ class TrajectoryNode(GraphNode):
         level = DiagnosticLevel.OK if pipe.status == "tracking" else DiagnosticLevel.WARN
         offset = pipe.offset_ns
         values: dict[str, Any] = {
-            "suit clock offset (ms)": "unknown" if offset is None else f"{offset * 1e-6:.1f}",
+            OFFSET_VALUE: "unknown" if offset is None else f"{offset * 1e-6:.1f}",
             "mounting levelled by (deg)": f"{pipe.mount_levelled_deg:.2f}",
             "suit odometry's pelvis up vs its pelvis IMU's (deg)": f"{pipe.odometry_tilt_deg:.2f}",
             "mounting turned about the body by (deg)": f"{pipe.mount_yaw_deg:.2f}",
-            "mounting's spin (the ground at the start)": pipe.spin.status,
-            "mounting's hip (the wearer's own returns at the start)": pipe.side.status,
+            MOUNT_SPIN_VALUE: pipe.spin.status,
+            MOUNT_HIP_VALUE: pipe.side.status,
             "body axis, walk's turns vs levelled (deg)": _mount_check(pipe),
             "lever arm in the pelvis frame (m)": " ".join(f"{v:+.3f}" for v in pipe.lever_m),
             "lever arm sigma (m)": " ".join(f"{v:.3f}" for v in pipe.lever.sigma_m),
