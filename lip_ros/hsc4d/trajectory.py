@@ -98,7 +98,9 @@ class TrajectoryConfig:
     site_map: SiteMapConfig = field(default_factory=SiteMapConfig)
     spin_check: SpinCheckConfig = field(default_factory=SpinCheckConfig)
     side_check: SideCheckConfig = field(default_factory=SideCheckConfig)
-    check_mount: bool = True  # find the sensor's spin and hip from the first sweeps (False: the mounting as given)
+    check_mount: bool = True  # find the sensor's spin from the first sweeps (False: the mounting as given)
+    check_hip: bool = False  # ... and, with check_mount, its hip (opt-in: a sensor that sees its own side's arm at the
+    #                          start is put on the wrong hip; docs/hsc4d/trajectory.md "Rig variants: the other hip")
     hold_s: float = 15.0  # sweeps held while waiting for the jump (about 0.8 MB each at 1024 x 64)
     map_after_s: float = 1.0  # registered capture before the map frame is fixed (the wearer stands still)
     scale_window_s: float = 20.0  # the suit's stride scale is measured over this much believed walking
@@ -220,7 +222,8 @@ class TrajectoryPipeline:
         self.side = SideCheck(c.mount, c.side_check)  #: the hip it is worn on from the wearer's own returns in them
         if not c.check_mount:
             self.spin.skip("as configured (not checked: check_mount false)")
-            self.side.skip("as configured (not checked: check_mount false)")
+        if not (c.check_mount and c.check_hip):
+            self.side.skip(f"as configured (not checked: check_mount{'_hip' if c.check_mount else ''} false)")
         self.site = SiteMap(c.site_map)  #: the whole site, placed by the live odometry (S_live)
         self.mapped = 0  #: steps put in the site map
         self.counts: Counter[str] = Counter()

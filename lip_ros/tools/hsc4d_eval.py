@@ -28,7 +28,8 @@ reported as lost and left out of the means; the exit status is then 1.
 Rig variants (as ``lip_rig site-bag`` takes them, ``lip_ros.tools.site_variants``): ``--mount-tilt-up DEG``
 (the hip LiDAR's true tilt), ``--mount-spin DEG`` (turned about its own axis), ``--mount-lever X Y Z`` (its
 lever arm: the other hip), ``--suit-rate HZ`` (the suit's rate), ``--suit-noise-scale X`` (the suit's IMU errors X
-times the rig's); ``--no-check-mount`` turns the method's checks of the mounting at the start off.
+times the rig's); ``--no-check-mount`` turns the method's check of the mounting's spin at the start off,
+``--check-hip`` adds its check of the hip.
 Held-out seeds: 1000 and up (development used 0-20).
 """
 
@@ -132,13 +133,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--nominal-spin", type=float, default=HipMountPrior.spin_deg, metavar="DEG",
                         help="the method's nominal spin of the hip LiDAR (params/hsc4d.yaml's mount_spin_deg)")
     parser.add_argument("--no-check-mount", action="store_true",
-                        help="the method uses the nominal mounting as given: no spin or hip found at the start "
+                        help="the method uses the nominal mounting as given: no spin found at the start "
                              "(params/hsc4d.yaml's check_mount false)")
+    parser.add_argument("--check-hip", action="store_true",
+                        help="the method also finds the hip from the wearer's own returns at the start "
+                             "(params/hsc4d.yaml's check_mount_hip true)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     config = TrajectoryConfig(mount=HipMountPrior(spin_deg=args.nominal_spin),
                               odometry=OdometryConfig(max_rate_hz=args.max_registration_hz),
-                              check_mount=not args.no_check_mount)
+                              check_mount=not args.no_check_mount, check_hip=args.check_hip)
     args.out.mkdir(parents=True, exist_ok=True)
     runs, report = [], {}
     for seed in args.seeds:

@@ -46,6 +46,7 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults_and_the_contract():
     assert tuple(trajectory["mount_lever_m"]) == mount.lever_m
     assert trajectory["mount_tilt_up_deg"] == mount.tilt_up_deg
     assert trajectory["mount_spin_deg"] == mount.spin_deg and trajectory["check_mount"] == config.check_mount
+    assert trajectory["check_mount_hip"] == config.check_hip
     assert trajectory["hold_s"] == config.hold_s and trajectory["map_after_s"] == config.map_after_s
     assert trajectory["max_registration_hz"] == config.odometry.max_rate_hz
     assert trajectory["suit_rate_hz"] == body["suit_rate_hz"] == config.suit_rate_hz

@@ -177,9 +177,11 @@ class TrajectoryNode(GraphNode):
                                 "connector, points; 0 where the body faces, 180 with the connector to the back (a "
                                 "tilted sensor spun 30 deg or more from it is found from the ground at the start "
                                 "and used, with a WARN)"),
-        "check_mount": Param("find the LiDAR's spin (the ground) and the hip it is worn on (the wearer's own "
-                             "returns) from the first sweeps, and use them where they differ from the mount_* "
-                             "values, with a WARN (false: the mounting exactly as set)"),
+        "check_mount": Param("find the LiDAR's spin from the ground of the first sweeps and use it where it "
+                             "differs from mount_spin_deg, with a WARN (false: the mounting exactly as set)"),
+        "check_mount_hip": Param("with check_mount, also find the hip the LiDAR is worn on from the wearer's own "
+                                 "returns in the first sweeps (opt-in: a sensor that sees its own side's arm there is "
+                                 "put on the wrong hip)"),
         "hold_s": Param("sweeps held while waiting for the jump (older ones are dropped and counted)", positive),
         "map_after_s": Param("registered capture (the wearer standing still) before the map frame is fixed",
                              non_negative),
@@ -202,7 +204,7 @@ class TrajectoryNode(GraphNode):
                                     float(p["mount_spin_deg"])),
                 odometry=OdometryConfig(max_rate_hz=float(p["max_registration_hz"])),
                 hold_s=float(p["hold_s"]), map_after_s=float(p["map_after_s"]), suit_rate_hz=float(p["suit_rate_hz"]),
-                check_mount=bool(p["check_mount"]))
+                check_mount=bool(p["check_mount"]), check_hip=bool(p["check_mount_hip"]))
         except ValueError as exc:
             raise ParameterError(str(exc)) from exc
         self.pipeline = TrajectoryPipeline(self._config)
