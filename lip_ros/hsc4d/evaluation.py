@@ -87,8 +87,8 @@ class TrajectoryRun:
     finds it, each counted at that call's time over their number), the refinement's optimisation time per window
     (s) and the sole height it measured (m), the pipeline's counters, the maps (M, 3) in ``map`` (:data:`MAPS`), the
     wall time of the whole offline refinement (s), and the mounting T_M_L (4, 4: the sensor in the pelvis frame)
-    the pipeline ended with, its nominal value and the truth, and its rotation R_M_L (3, 3) by the walk's turns
-    (None if they did not give it)."""
+    the pipeline ended with, its nominal value and the truth, its rotation R_M_L (3, 3) by the walk's turns
+    (None if they did not give it), and what the checks of the mounting at the start found."""
 
     seed: int
     t_s: np.ndarray
@@ -112,6 +112,7 @@ class TrajectoryRun:
     nominal_mount: np.ndarray
     true_mount: np.ndarray
     hand_eye: np.ndarray | None
+    mount_checks: str
 
 
 def capture_sweeps(capture: SiteCapture, refiner: CaptureRefiner) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
@@ -211,7 +212,8 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                          refined.window_s, refined.sole_m, dict(pipeline.counts),
                          {"live": maps[-1][1], "refined": refined.map},
                          refined.seconds, np.linalg.inv(pipeline.T_L_M), pipeline.config.mount.T_M_L,
-                         capture.mount.T_M_L, pipeline.hand_eye.R_M_L)
+                         capture.mount.T_M_L, pipeline.hand_eye.R_M_L,
+                         f"spin: {pipeline.spin.status}; hip: {pipeline.side.status}")
 
 
 def _fit_window(run: TrajectoryRun, fit_s: float) -> np.ndarray:

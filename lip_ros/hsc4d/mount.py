@@ -24,8 +24,8 @@ ground seen in the first sweeps, whose up lies the tilt away from the spin
 axis whatever the spin, and in the direction about it that the spin decides.
 "About 0.15 m to the side" does not say which hip, and the lever arm shows only
 when the body turns about the vertical (a walk's first corner): :class:`SideCheck`
-reads the hip from the wearer's own returns in the first sweeps, which lie
-toward the body's middle, to one side of the sensor.
+reads the hip from the first sweeps, in which the wearer's torso and thighs block
+the sensor's rays toward the body's middle: no return lies beyond them.
 """
 
 from __future__ import annotations
@@ -35,9 +35,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lip_ros.core.body import TORSO_PARTS, BodyModel, first_hits
 from lip_ros.core.frames import hip_lidar_rotation
 from lip_ros.core.ground_plane import fit_ground_plane
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from lip_ros.core.skeleton import forward_kinematics, load_skeleton
 
 #: returns nearer a hip LiDAR than this are the wearer's own (an arm swung out: the rig's wearer returns up to 0.7 m
 #: away, nothing else comes that close)
@@ -141,6 +143,7 @@ class SpinCheck:
         self.config = config or SpinCheckConfig()
         self._rng = np.random.default_rng([seed, 7])  # its own stream: the checks leave the other fits' draws alone
         self._readings: list[float] = []
+        self._ups: list[np.ndarray] = []
         self._tried = 0
         self.correction_deg: float | None = None  #: once decided: the spin to add to the nominal one (deg)
         self.status = "not checked yet"  #: what was found
@@ -160,10 +163,18 @@ class SpinCheck:
         """End the check without a reading (the mounting came from elsewhere: ``status``)."""
         self.correction_deg, self.status = 0.0, status
 
-    def reading_deg(self, points: np.ndarray) -> float | None:
-        """How far (deg) one sweep's ground (points (N, 3) in L) says the sensor is spun from the nominal mounting;
-        None if no ground plane was found (tilted from the spin axis as the nominal tilt, with the sensor a hip's
-        height above it), or the sensor is tilted too little from it to tell."""
+    @property
+    def up_L(self) -> np.ndarray | None:
+        """(3,) gravity's up in L as the ground of the sweeps read so far shows it (their mean), None if none did."""
+        if not self._ups:
+            return None
+        up = np.sum(self._ups, axis=0)
+        return up / np.linalg.norm(up)
+
+    def ground_up(self, points: np.ndarray) -> np.ndarray | None:
+        """(3,) gravity's up in L from one sweep's ground (points (N, 3) in L); None if no ground plane was found
+        (tilted from the spin axis as the nominal tilt, with the sensor a hip's height above it), or the sensor is
+        tilted too little from it to show its spin."""
         c, m = self.config, self.mount
         points = np.asarray(points, dtype=np.float64)
         r = np.linalg.norm(points, axis=1)
@@ -171,10 +182,20 @@ class SpinCheck:
                                  m.tilt_up_deg + c.margin_deg, c.min_points, self._rng)
         if plane is None or not c.height_m[0] <= plane.offset <= c.height_m[1]:
             return None
-        up, nominal = plane.normal, m.R_M_L.T @ np.array([0.0, 1.0, 0.0])  # gravity's up in L; M's y through m
-        tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+        tilt = float(np.degrees(np.arccos(np.clip(plane.normal[2], -1.0, 1.0))))
         if tilt < c.min_tilt_deg or abs(tilt - m.tilt_up_deg) > c.tilt_margin_deg:
             return None
+        return plane.normal
+
+    def reading_deg(self, points: np.ndarray) -> float | None:
+        """How far (deg) one sweep's ground (points (N, 3) in L) says the sensor is spun from the nominal mounting;
+        None where :meth:`ground_up` finds no up."""
+        up = self.ground_up(points)
+        return None if up is None else self._spin_of(up)
+
+    def _spin_of(self, up: np.ndarray) -> float:
+        """How far (deg) gravity's ``up`` (3,) in L says the sensor is spun from the nominal mounting."""
+        nominal = self.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])  # M's y (up) through the nominal mounting
         # spun by d more than nominal, R_M_L becomes R_M_L Rz(d): the up in L turns by -d about L's z
         d = np.arctan2(nominal[1], nominal[0]) - np.arctan2(up[1], up[0])
         return float(np.degrees(np.arctan2(np.sin(d), np.cos(d))))
@@ -187,9 +208,10 @@ class SpinCheck:
         c = self.config
         self._tried += 1
         points = np.asarray(points, dtype=np.float64)
-        reading = self.reading_deg(points[np.isfinite(points).all(axis=1)])
-        if reading is not None:
-            self._readings.append(reading)
+        up = self.ground_up(points[np.isfinite(points).all(axis=1)])
+        if up is not None:
+            self._ups.append(up)
+            self._readings.append(self._spin_of(up))
         if len(self._readings) >= c.sweeps:
             a = np.radians(self._readings)
             mean = float(np.degrees(np.arctan2(np.sin(a).sum(), np.cos(a).sum())))
@@ -213,34 +235,57 @@ class SpinCheck:
 
 @dataclass(frozen=True)
 class SideCheckConfig:
-    """How the hip the sensor is worn on is read from the wearer's own returns in the first sweeps
-    (:class:`SideCheck`)."""
+    """How the hip the sensor is worn on is read from the first sweeps (:class:`SideCheck`)."""
 
-    near_m: float = WEARER_NEAR_M  # returns nearer than this are the wearer's own
-    min_points: int = 10  # a sweep with fewer of them says nothing (the rig's wearers: 0 or 15-520 a sweep)
-    min_share: float = 0.9  # ... and one where fewer than this share of them lie on one side of the sensor
-    sweeps: int = 3  # sweeps that must say the same side, all that said one agreeing
+    lever_spread_m: tuple[float, float, float] = (0.05, 0.05, 0.1)  # the wearer's body tried with the lever arm this
+    #                                                                 far either way of the nominal, per axis (3 x 3
+    #                                                                 x 3 positions: a real mounting is off by some)
+    erode: float = 0.5  # the body's capsules at this share of their radii (the wearer's girth and shape unknown)
+    margin_m: float = 0.1  # a return this far beyond the body's surface along its ray says the body is not there
+    min_seen_through: int = 30  # a sweep tells a side when the other side's body is seen through by this many
+    #                             returns (of a 1024 x 64 sweep's 40 000 or so) ...
+    max_share: float = 0.25  # ... and this side's by at most this share of them
+    sweeps: int = 3  # the last sweeps read; each must tell the same side
 
     def __post_init__(self) -> None:
-        if not (self.near_m > 0.0 and self.min_points >= 1 and 0.5 < self.min_share <= 1.0 and self.sweeps >= 1):
+        if not (min(self.lever_spread_m) >= 0.0 and 0.0 < self.erode <= 1.0 and self.margin_m > 0.0
+                and self.min_seen_through >= 1 and 0.0 <= self.max_share < 1.0 and self.sweeps >= 1):
             raise ValueError(f"invalid {self}")
 
 
+def _standing_body(girth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The capsules (ends a, b (K, 3), radii (K,)) of the contract skeleton's torso and thighs in its A-pose, in
+    the pelvis frame, at ``girth`` times their radii: the parts of a wearer standing at the start that stay where
+    they are whatever the arms do."""
+    skeleton = load_skeleton()
+    local = skeleton.pose_local_rotations("a_pose")
+    local[0] = np.eye(3)
+    body = BodyModel(skeleton, girth=girth)
+    a, b, r = body.capsules(*forward_kinematics(skeleton, local))
+    keep = np.isin(body.names, TORSO_PARTS + ("left_thigh", "right_thigh"))
+    return a[keep], b[keep], r[keep]
+
+
 class SideCheck:
-    """Which hip the sensor is worn on, against the nominal lever arm's side, from the wearer's own returns: a
-    wearer standing upright at the start is to one side of a hip-worn sensor, toward the body's middle, so the
-    returns nearer than ``near_m`` lie to the sensor's left (the pelvis frame's +x) when it is on the right hip,
-    and to its right when on the left. :meth:`check` reads the first sweeps once the mounting's rotation is known
-    (the spin decides which way the sensor's axes point); when ``sweeps`` of them tell a side, and all that tell
-    one agree, the side found is used: the nominal lever arm mirrored across the body's middle if it is the other
-    (:attr:`lever_m`). Otherwise (no own returns seen: the body outside the sensor's field of view or nearer than
-    its minimum range) the lever arm stays as configured, and :attr:`status` says why."""
+    """Which hip the sensor is worn on, against the nominal lever arm's side, from the first sweeps of the wearer
+    standing: the wearer's torso and thighs, right beside a hip-worn sensor, block its rays toward the body's
+    middle, so no return lies beyond them. :meth:`check` puts the contract skeleton's torso and thighs (A-pose,
+    thinned to ``erode`` of their girth, the pelvis upright) where the nominal lever arm says and where it says
+    mirrored across the body's middle, each at the lever arm's 27 positions within ``lever_spread_m`` of it
+    keeping the one that fits best, and counts the returns seen through each side's body (more than ``margin_m``
+    beyond it along their rays): a sweep tells the side whose body is seen through by at most ``max_share`` of the
+    other's count, when that is at least ``min_seen_through``. The last ``sweeps`` sweeps must all tell the same
+    side; it is then used: the nominal lever arm mirrored if it is the other (:attr:`lever_m`). Otherwise (the
+    body's place not seen: the near arm hides it, or the sensor's field of view misses it) the lever arm stays
+    as configured, and :attr:`status` says why. The wearer's own returns do not take part: which of them are the
+    near arm and which the body beyond depends on the arms and on the sensor's minimum range."""
 
     def __init__(self, mount: HipMountPrior, config: SideCheckConfig | None = None) -> None:
         self.mount = mount
         self.config = config or SideCheckConfig()
         self.lever_m: tuple[float, float, float] | None = None  #: once decided: the lever arm to use
         self.status = "not checked yet"  #: what was found
+        self._body: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @property
     def decided(self) -> bool:
@@ -256,43 +301,77 @@ class SideCheck:
         """End the check without a reading (the mounting came from elsewhere: ``status``)."""
         self.lever_m, self.status = tuple(self.mount.lever_m), status
 
-    def reading(self, points: np.ndarray, R_M_L: np.ndarray) -> int | None:
-        """Which side of the sensor the wearer's own returns in one sweep (points (N, 3) in L) lie on, with the
-        sensor frame L in the pelvis frame as ``R_M_L`` (3, 3): +1 to its left (the sensor on the right hip), -1
-        to its right, None if too few of them, or not mostly to one side."""
+    def seen_through(self, points: np.ndarray, R_M_L: np.ndarray) -> tuple[int, int]:
+        """How many of one sweep's returns (points (N, 3) in L; non-finite and zero ones left out) lie beyond the
+        wearer's torso and thighs with the sensor on the right hip and on the left (the best fitting of the lever
+        arm's positions on each), with the sensor frame L in the pelvis frame as ``R_M_L`` (3, 3)."""
         c = self.config
+        if self._body is None:
+            self._body = _standing_body(c.erode)
         points = np.asarray(points, dtype=np.float64)
-        r2 = np.einsum("na,na->n", points, points)
-        own = points[(r2 > 0.0) & (r2 < c.near_m**2)]
-        if len(own) < c.min_points:
-            return None
-        left = float(np.mean(own @ np.asarray(R_M_L)[0] > 0.0))  # M's x (left) of each return
-        return 1 if left >= c.min_share else -1 if left <= 1.0 - c.min_share else None
+        points = points[np.isfinite(points).all(axis=1)]
+        ranges = np.linalg.norm(points, axis=1)
+        points, ranges = points[ranges > 0.0], ranges[ranges > 0.0]
+        dirs = (points / ranges[:, None]) @ np.asarray(R_M_L, dtype=np.float64).T  # rays in M
+        nominal = np.array(self.mount.lever_m, dtype=np.float64)
+        steps = [np.array([-1.0, 0.0, 1.0]) * s for s in c.lever_spread_m]
+        counts = []
+        for side in (-1.0, 1.0):  # right hip (M's x is left), left hip
+            best = None
+            for dx, dy, dz in ((x, y, z) for x in steps[0] for y in steps[1] for z in steps[2]):
+                lever = np.array([side * abs(nominal[0]) + side * dx, nominal[1] + dy, nominal[2] + dz])
+                hit, _ = first_hits(lever, dirs, *self._body)
+                seen = int(np.count_nonzero(hit < ranges - c.margin_m))
+                best = seen if best is None else min(best, seen)
+                if best == 0:
+                    break
+            counts.append(best)
+        return counts[0], counts[1]
 
-    def check(self, sweeps: list[np.ndarray], R_M_L: np.ndarray) -> None:
-        """Decide from the first sweeps of the wearer standing (points (N, 3) in L each, non-finite ones left out)
-        with the mounting's rotation ``R_M_L`` (3, 3) as it stands."""
+    def reading(self, points: np.ndarray, R_M_L: np.ndarray) -> int | None:
+        """Which hip one sweep (points (N, 3) in L) puts the sensor on, with the sensor frame L in the pelvis frame
+        as ``R_M_L`` (3, 3): +1 the right, -1 the left, None if it does not tell."""
+        c = self.config
+        right, left = self.seen_through(points, R_M_L)
+        if left >= c.min_seen_through and right <= c.max_share * left:
+            return 1
+        if right >= c.min_seen_through and left <= c.max_share * right:
+            return -1
+        return None
+
+    def check(self, sweeps: list[np.ndarray], R_M_L: np.ndarray, up_L: np.ndarray | None = None) -> None:
+        """Decide from the first sweeps of the wearer standing (points (N, 3) in L each; the last ``sweeps`` of
+        them read) with the mounting's rotation ``R_M_L`` (3, 3) as it stands, levelled first where gravity's up in
+        L ``up_L`` (3,) is given (:attr:`SpinCheck.up_L`), the wearer standing upright."""
         if self.decided:
             return
+        if up_L is not None:
+            R_M_L = levelled_mount_rotation(R_M_L, np.array([0.0, 1.0, 0.0]), up_L)
         nominal = tuple(float(v) for v in self.mount.lever_m)
         if nominal[0] == 0.0:
             self.skip("as configured: the nominal lever arm is not to a side")
             return
-        readings = [self.reading(p[np.isfinite(p).all(axis=1)], R_M_L) for p in sweeps]
-        said = [r for r in readings if r is not None]
+        read = sweeps[-self.config.sweeps:]
+        said: list[int | None] = []
+        for points in read:  # each must tell: the first that does not ends the check
+            said.append(self.reading(points, R_M_L))
+            if said[-1] is None:
+                self.skip(f"as configured: the wearer's body did not tell a side (sweep {len(said)} of the last "
+                          f"{len(read)} read)")
+                return
         if len(said) < self.config.sweeps:
-            self.skip(f"as configured: the wearer's own returns told a side in {len(said)} of {len(sweeps)} sweeps")
+            self.skip(f"as configured: {len(said)} sweeps read, {self.config.sweeps} needed")
             return
         if len(set(said)) > 1:
-            self.skip(f"as configured: the wearer's own returns told both sides ({said.count(1)} sweeps the right "
-                      f"hip, {said.count(-1)} the left)")
+            self.skip(f"as configured: the wearer's body told both sides ({said.count(1)} sweeps the right hip, "
+                      f"{said.count(-1)} the left)")
             return
-        hip = "right" if said[0] > 0 else "left"  # the returns to the sensor's left: it is on the right hip
+        hip = "right" if said[0] > 0 else "left"
         if (nominal[0] < 0.0) == (said[0] > 0):  # M's x is left: a right hip has the lever's x negative
-            self.lever_m, self.status = nominal, f"as configured (the wearer's own returns: the {hip} hip)"
+            self.lever_m, self.status = nominal, f"as configured (the wearer's body at the start: the {hip} hip)"
             return
         self.lever_m = (-nominal[0], nominal[1], nominal[2])
-        self.status = (f"the wearer's own returns at the start put the LiDAR on the {hip} hip, mount_lever_m on the "
+        self.status = (f"the wearer's body at the start puts the LiDAR on the {hip} hip, mount_lever_m on the "
                        f"other: used [{', '.join(f'{v:.3f}' for v in self.lever_m)}] (set mount_lever_m to it)")
 
 

@@ -99,8 +99,8 @@ class TrajectoryConfig:
     spin_check: SpinCheckConfig = field(default_factory=SpinCheckConfig)
     side_check: SideCheckConfig = field(default_factory=SideCheckConfig)
     check_mount: bool = True  # find the sensor's spin from the first sweeps (False: the mounting as given)
-    check_hip: bool = False  # ... and, with check_mount, its hip (opt-in: a sensor that sees its own side's arm at the
-    #                          start is put on the wrong hip; docs/hsc4d/trajectory.md "Rig variants: the other hip")
+    check_hip: bool = True  # ... and, with check_mount, its hip from the wearer's body in them (docs/hsc4d/
+    #                         trajectory.md "Rig variants: the other hip")
     hold_s: float = 15.0  # sweeps held while waiting for the jump (about 0.8 MB each at 1024 x 64)
     map_after_s: float = 1.0  # registered capture before the map frame is fixed (the wearer stands still)
     scale_window_s: float = 20.0  # the suit's stride scale is measured over this much believed walking
@@ -219,7 +219,7 @@ class TrajectoryPipeline:
         self.lever = LeverArmEstimator(c.mount.lever_m)
         self.hand_eye = MountRotationEstimator()  #: the mounting from the walk's turns, a check on the levelled one
         self.spin = SpinCheck(c.mount, c.spin_check, c.seed)  #: the sensor's spin from the ground of the first sweeps
-        self.side = SideCheck(c.mount, c.side_check)  #: the hip it is worn on from the wearer's own returns in them
+        self.side = SideCheck(c.mount, c.side_check)  #: the hip it is worn on from the wearer's body in them
         if not c.check_mount:
             self.spin.skip("as configured (not checked: check_mount false)")
         if not (c.check_mount and c.check_hip):
@@ -494,9 +494,10 @@ class TrajectoryPipeline:
         self._set_mount(mount.T_M_L)
 
     def _use_side(self, sweeps: list[np.ndarray]) -> None:
-        """Put the nominal mounting on the hip the wearer's own returns in the first ``sweeps`` showed, if it is
-        the other (the lever arm mirrored across the body's middle, its estimate starting from there)."""
-        self.side.check(sweeps, self.config.mount.R_M_L)
+        """Put the nominal mounting on the hip the wearer's body in the first ``sweeps`` showed, if it is the other
+        (the lever arm mirrored across the body's middle, its estimate starting from there), through the mounting's
+        rotation levelled with the ground's up the spin check read."""
+        self.side.check(sweeps, self.config.mount.R_M_L, self.spin.up_L)
         if not self.side.mirrored:
             return
         mount = replace(self.config.mount, lever_m=self.side.lever_m)

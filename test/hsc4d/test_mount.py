@@ -1,5 +1,5 @@
 """The hip mounting's estimate (lip_ros.hsc4d.mount): its spin from the ground at the start, its hip from the wearer's
-own returns at the start, levelled with gravity at the start, turned about the body's axis by walking, its lever arm
+body at the start, levelled with gravity at the start, turned about the body's axis by walking, its lever arm
 from the body's turns, its rotation from the walk's turns (hand-eye)."""
 
 from __future__ import annotations
@@ -7,8 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lip_ros.core.body import BodyModel
 from lip_ros.core.frames import R_L_M_FACING_X
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, rot_x, rot_z
+from lip_ros.core.skeleton import forward_kinematics, load_skeleton
 from lip_ros.hsc4d.mount import (
     HipMountPrior,
     LeverArmEstimator,
@@ -40,8 +42,9 @@ def _ground_in_lidar(mount: HipMountPrior, rng: np.random.Generator, height_m: f
 def test_the_spin_about_the_sensors_axis_is_read_from_the_ground(spin_deg):
     """Whatever the sensor's spin, the ground's up lies the tilt from its axis and turns about it with the spin:
     one sweep of ground reads the spin against the nominal mounting's within half a degree; five agreeing sweeps
-    decide, a spin 30 deg or more off the nominal is the correction to use (and the status says to set
-    ``mount_spin_deg``), a smaller one is left to levelling and the walk's yaw."""
+    decide (their mean up within half a degree of gravity's), a spin 30 deg or more off the nominal is the
+    correction to use (and the status says to set ``mount_spin_deg``), a smaller one is left to levelling and the
+    walk's yaw."""
     rng = np.random.default_rng(1)
     true = HipMountPrior(tilt_up_deg=28.0, spin_deg=spin_deg)
     check = SpinCheck(HipMountPrior())
@@ -49,6 +52,7 @@ def test_the_spin_about_the_sensors_axis_is_read_from_the_ground(spin_deg):
     assert abs((reading - spin_deg + 180.0) % 360.0 - 180.0) < 0.5
     decided = [check.add(_ground_in_lidar(true, rng)) for _ in range(SpinCheckConfig().sweeps)]
     assert decided == [False] * (len(decided) - 1) + [True] and check.decided
+    assert _angle_deg(np.eye(3), rotation_between(check.up_L, true.R_M_L.T @ [0.0, 1.0, 0.0])) < 0.5  # the up, in L
     if abs(spin_deg) >= SpinCheckConfig().min_error_deg:
         assert abs((check.correction_deg - spin_deg + 180.0) % 360.0 - 180.0) < 0.5
         assert -180.0 <= check.spin_deg <= 180.0 and abs((check.spin_deg - spin_deg + 180.0) % 360.0 - 180.0) < 0.5
@@ -78,69 +82,92 @@ def test_the_spin_stays_as_configured_when_the_ground_does_not_tell():
     assert skipped.correction_deg == 0.0
 
 
-def _own_returns_in_lidar(mount: HipMountPrior, body_side: float, rng: np.random.Generator, count: int = 200
-                          ) -> np.ndarray:
-    """Points (N, 3) in L: ``count`` returns of the wearer 0.65-0.85 m from the sensor, 0.2-0.6 m to its
-    ``body_side`` (+1: left, the pelvis frame's +x; 0: half on each side), and ground 1.5-6 m away, the sensor mounted
-    as ``mount`` (its rotation) 1 m above it."""
-    side = np.where(rng.random(count) < 0.5, 1.0, -1.0) if body_side == 0 else np.full(count, body_side)
-    lateral = side * rng.uniform(0.2, 0.6, count)
-    rest = rng.normal(size=(count, 2))
-    rest *= (np.sqrt(rng.uniform(0.65**2, 0.85**2, count) - lateral**2) / np.linalg.norm(rest, axis=1))[:, None]
-    own_M = np.column_stack([lateral, rest])  # (x left, y up, z forward) from the sensor
-    ground = _ground_in_lidar(mount, rng)
-    ground = ground[np.linalg.norm(ground, axis=1) > 1.5]
-    return np.concatenate([own_M @ mount.R_M_L, ground])  # M -> L: R_M_L^T p, as rows
+def _standing_sweep(mount: HipMountPrior, lever_m: tuple[float, float, float] | None = None, scene: str = "room",
+                    min_range_m: float = 0.5) -> np.ndarray:
+    """Points (N, 3) in L of one sweep (64 x 512 beams over +-16.6 deg, an OS1-64's) of a sensor mounted as ``mount``
+    (at ``lever_m`` if given) on the contract skeleton's body standing in its A-pose, arms and all, in ``scene``:
+    "room" (flat ground, a wall all round 4 m away), "field" (the ground only) or "sky" (nothing beyond the body),
+    returns nearer than ``min_range_m`` lost."""
+    skeleton = load_skeleton()
+    local = skeleton.pose_local_rotations("a_pose")
+    local[0] = np.eye(3)
+    glob, joints = forward_kinematics(skeleton, local)
+    elevation, azimuth = np.meshgrid(np.radians(np.linspace(-16.6, 16.6, 64)), np.linspace(-np.pi, np.pi, 512,
+                                                                                          endpoint=False))
+    dirs_L = np.column_stack([(np.cos(elevation) * np.cos(azimuth)).ravel(),
+                              (np.cos(elevation) * np.sin(azimuth)).ravel(), np.sin(elevation).ravel()])
+    origin = np.array(mount.lever_m if lever_m is None else lever_m)
+    dirs_M = dirs_L @ mount.R_M_L.T
+    ranges = BodyModel(skeleton).raycast(origin, dirs_M, glob, joints)[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if scene != "sky":  # the soles' level, 0.95 m under the pelvis
+            down = np.where(dirs_M[:, 1] < -1e-6, (-0.95 - origin[1]) / dirs_M[:, 1], np.inf)
+            ranges = np.minimum(ranges, np.where(down <= 30.0, down, np.inf))
+        if scene == "room":  # |o + t d| = 4 m in the horizontal (x, z)
+            o, d = origin[[0, 2]], dirs_M[:, [0, 2]]
+            qa, qb = np.sum(d * d, axis=1), d @ o
+            ranges = np.minimum(ranges, (-qb + np.sqrt(qb * qb - qa * (o @ o - 16.0))) / qa)
+    seen = np.isfinite(ranges) & (ranges >= min_range_m)
+    return dirs_L[seen] * ranges[seen, None]
 
 
-@pytest.mark.parametrize(("worn", "spin_deg"), [("right", 0.0), ("left", 0.0), ("left", 180.0)])
-def test_the_hip_the_sensor_is_worn_on_is_read_from_the_wearers_own_returns(worn, spin_deg):
-    """The wearer stands toward the body's middle of a hip-worn sensor: its own returns lie to the sensor's left
-    on the right hip (the nominal lever arm's), to its right on the left hip, in the pelvis frame's axes through the
-    mounting's rotation (spun or not). Three agreeing sweeps decide: on the nominal hip the lever arm stays; on
-    the other it is mirrored across the body's middle, and the status says to set ``mount_lever_m``."""
-    rng = np.random.default_rng(3)
+@pytest.mark.parametrize(("worn", "spin_deg", "lever_m", "min_range_m"), [
+    ("right", 0.0, None, 0.5), ("left", 0.0, (0.15, 0.0, -0.1), 0.5), ("left", 180.0, (0.15, 0.0, -0.1), 0.5),
+    ("left", 0.0, (0.2, 0.04, -0.02), 0.5),  # a lever arm off the nominal by 5-8 cm
+    ("right", 0.0, (-0.11, -0.05, -0.18), 0.5),
+    ("right", 0.0, None, 0.1), ("left", 0.0, (0.15, 0.0, -0.1), 0.1),  # the near arm and the body seen
+])
+def test_the_hip_the_sensor_is_worn_on_is_read_from_the_wearers_body(worn, spin_deg, lever_m, min_range_m):
+    """The wearer's torso and thighs block a hip-worn sensor's rays toward the body's middle: no return lies beyond
+    them on the hip it is worn on, while the ground is seen where they would stand on the other. Read through the
+    mounting's rotation (spun or not), with the lever arm off the nominal by a few centimetres, with the wearer's own
+    returns from 0.1 m (its near arm among them: they take no part), three sweeps decide:
+    on the nominal hip the lever arm stays; on the other it is mirrored across the body's middle, and the status
+    says to set ``mount_lever_m``. Non-finite and zero points are left out."""
     mount = HipMountPrior(spin_deg=spin_deg)
-    body_side = 1.0 if worn == "right" else -1.0
-    sweeps = [_own_returns_in_lidar(mount, body_side, rng) for _ in range(SideCheckConfig().sweeps)]
-    check = SideCheck(HipMountPrior())
-    assert check.reading(sweeps[0], mount.R_M_L) == body_side and not check.decided
-    check.check(sweeps, mount.R_M_L)
+    sweep = _standing_sweep(mount, lever_m, min_range_m=min_range_m)
+    right, left = SideCheck(mount).seen_through(sweep, mount.R_M_L)
+    if worn == "right":
+        assert right == 0 and left > 100
+    else:
+        assert left == 0 and right > 100
+    check = SideCheck(mount)
+    check.check([np.concatenate([sweep, np.full((50, 3), np.nan), np.zeros((5, 3))])] * SideCheckConfig().sweeps,
+                mount.R_M_L)
     assert check.decided
     if worn == "right":
-        assert check.lever_m == HipMountPrior().lever_m and not check.mirrored
-        assert check.status == "as configured (the wearer's own returns: the right hip)"
+        assert check.lever_m == mount.lever_m and not check.mirrored
+        assert check.status == "as configured (the wearer's body at the start: the right hip)"
     else:
         assert check.lever_m == (0.15, 0.0, -0.1) and check.mirrored
-        assert "on the left hip" in check.status and "(set mount_lever_m to it)" in check.status
+        assert "puts the LiDAR on the left hip" in check.status and "(set mount_lever_m to it)" in check.status
 
 
-def test_the_hip_stays_as_configured_when_the_wearers_own_returns_do_not_tell():
-    """No own returns (the body outside the field of view or nearer than the sensor's minimum range), returns on
-    both sides in every sweep, sweeps telling both hips, a nominal lever arm at the body's middle, or a check
-    skipped: the lever arm stays as configured, and the status says why. Non-finite points are left out."""
-    rng = np.random.default_rng(4)
+def test_the_hip_stays_as_configured_when_the_wearers_body_does_not_tell():
+    """Nothing seen beyond the body (the sky), a wearer on an open field (the ground seen only under the rays that
+    would meet the other hip's body), fewer sweeps than ``sweeps``, sweeps telling both hips, a nominal lever arm
+    at the body's middle, or a check skipped: the lever arm stays as configured, and the status says why. Only the
+    last ``sweeps`` sweeps are read."""
     mount = HipMountPrior()
-    cases = {
-        "told a side in 0 of 4 sweeps": [_ground_in_lidar(mount, rng) for _ in range(4)],
-        "told a side in 0 of 3 sweeps": [_own_returns_in_lidar(mount, 0.0, rng) for _ in range(3)],
-        "told both sides (2 sweeps the right hip, 1 the left)":
-            [_own_returns_in_lidar(mount, side, rng) for side in (1.0, -1.0, 1.0)],
-    }
-    for status, sweeps in cases.items():
+    right, left = _standing_sweep(mount), _standing_sweep(mount, (0.15, 0.0, -0.1))
+    cases = [
+        ("did not tell a side (sweep 1 of the last 3 read)", [_standing_sweep(mount, scene="sky")] * 4),
+        # an open field: the ground is seen only under the rays that meet the other hip's body, too few of them
+        ("did not tell a side (sweep 1 of the last 3 read)", [_standing_sweep(mount, (0.15, 0.0, -0.1), "field")] * 3),
+        ("did not tell a side (sweep 2 of the last 3 read)", [left, _standing_sweep(mount, scene="sky"), left]),
+        ("2 sweeps read, 3 needed", [left, left]),
+        ("told both sides (2 sweeps the right hip, 1 the left)", [left, right, left, right]),
+    ]
+    for status, sweeps in cases:
         check = SideCheck(mount)
         check.check(sweeps, mount.R_M_L)
         assert check.lever_m == mount.lever_m and not check.mirrored and status in check.status
     middle = SideCheck(HipMountPrior(lever_m=(0.0, 0.0, -0.15)))
-    middle.check([_own_returns_in_lidar(mount, -1.0, rng) for _ in range(3)], mount.R_M_L)
+    middle.check([left] * 3, mount.R_M_L)
     assert middle.lever_m == (0.0, 0.0, -0.15) and "not to a side" in middle.status
-    nan = np.full((50, 3), np.nan)
-    found = SideCheck(mount)
-    found.check([np.concatenate([_own_returns_in_lidar(mount, -1.0, rng), nan]) for _ in range(3)], mount.R_M_L)
-    assert found.mirrored
     skipped = SideCheck(mount)
     skipped.skip("as saved (resumed)")
-    skipped.check([_own_returns_in_lidar(mount, -1.0, rng) for _ in range(3)], mount.R_M_L)
+    skipped.check([left] * 3, mount.R_M_L)
     assert skipped.decided and not skipped.mirrored and skipped.status == "as saved (resumed)"
 
 

@@ -227,15 +227,15 @@ def test_a_lidar_worn_spun_about_its_axis_is_found_from_the_ground_and_reported(
 
 
 @pytest.mark.parametrize("check_hip", [True, False])
-def test_a_lidar_worn_on_the_other_hip_is_found_from_the_wearers_own_returns(check_hip):
+def test_a_lidar_worn_on_the_other_hip_is_found_from_the_wearers_body(check_hip):
     """"About 0.15 m to the side" does not say which hip, and the lever arm shows only when the body turns about the
     vertical (the rig's walks: at their first corner, 19-20 s in on seed 0; the live start stood 0.3 m aside
     until then, live ATE 19 cm on 30 s captures). Worn on the left hip with the nominal lever arm on the right, the
-    wearer's own returns in the first sweeps lie to the sensor's right (:class:`SideCheck`): the lever arm is
-    mirrored before the jump sync, the wearer's filter and the lever's estimate start from there, the capture is
-    tracked as the right hip's, and the status names ``mount_lever_m`` (measured: 3.1 cm). The check is opt-in
-    (``check_hip``; a sensor that sees its own side's arm is put on the wrong hip): by default the lever arm stays
-    on the right hip through these 20 s (8.1 cm)."""
+    ground and the site are seen in the first sweeps where the wearer's torso and thighs would stand on the right
+    hip (:class:`SideCheck`): the lever arm is mirrored before the jump sync, the wearer's filter and the lever's
+    estimate start from there, the capture is tracked as the left hip's, and the status names ``mount_lever_m``
+    (measured: 3.1 cm). With the check off (``check_hip`` false) the lever arm stays on the right hip through
+    these 20 s (8.1 cm)."""
     capture = SiteCapture(SiteCaptureConfig(seed=3, seconds=20.0, columns=512, mount_lever_m=(0.15, 0.0, -0.1)))
     refiner = CaptureRefiner(RefinementConfig(trajectory=TrajectoryConfig(check_hip=check_hip)))
     pipeline, steps, warned = refiner.pipeline, [], False

@@ -178,10 +178,11 @@ class TrajectoryNode(GraphNode):
                                 "tilted sensor spun 30 deg or more from it is found from the ground at the start "
                                 "and used, with a WARN)"),
         "check_mount": Param("find the LiDAR's spin from the ground of the first sweeps and use it where it "
-                             "differs from mount_spin_deg, with a WARN (false: the mounting exactly as set)"),
-        "check_mount_hip": Param("with check_mount, also find the hip the LiDAR is worn on from the wearer's own "
-                                 "returns in the first sweeps (opt-in: a sensor that sees its own side's arm there is "
-                                 "put on the wrong hip)"),
+                             "differs from mount_spin_deg, with a WARN (false: the mounting exactly as set, its "
+                             "hip too)"),
+        "check_mount_hip": Param("with check_mount, also find the hip the LiDAR is worn on from the wearer's body "
+                                 "in the first sweeps (the torso and thighs block its rays toward the body's middle) "
+                                 "and use it where it is not mount_lever_m's, with a WARN"),
         "hold_s": Param("sweeps held while waiting for the jump (older ones are dropped and counted)", positive),
         "map_after_s": Param("registered capture (the wearer standing still) before the map frame is fixed",
                              non_negative),
