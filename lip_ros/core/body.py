@@ -22,7 +22,7 @@ import numpy as np
 
 from lip_ros.core.skeleton import Skeleton
 
-__all__ = ["BodyModel", "TORSO_PARTS", "LIMB_PARTS", "first_hits"]
+__all__ = ["BodyModel", "TORSO_PARTS", "LIMB_PARTS", "first_hits", "capsule_distances"]
 
 # The capsule table below is drawn for the contract skeleton (scale 1); it scales with ``skeleton.scale``.
 
@@ -72,6 +72,13 @@ def _closest_on_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarr
     denom = np.maximum(np.sum(ab * ab, axis=-1), 1e-18)
     s = np.clip(np.sum((p - a) * ab, axis=-1) / denom, 0.0, 1.0)
     return a + s[..., None] * ab
+
+
+def capsule_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(N, K) signed distance of points (N, 3) to capsules (ends a, b (K, 3), radii r (K,)), negative inside."""
+    p = points[:, None, :]
+    q = _closest_on_segment(p, a[None], b[None])
+    return np.linalg.norm(p - q, axis=-1) - r
 
 
 def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -193,17 +200,11 @@ class BodyModel:
             raise ValueError("expected one pose: glob_rot (24, 3, 3), joint_pos (24, 3)")
         return _Capsules(a, b, r)
 
-    @staticmethod
-    def _capsule_distance(points: np.ndarray, caps: _Capsules) -> np.ndarray:
-        """(N, K) signed distance of each point to each capsule."""
-        p = points[:, None, :]
-        q = _closest_on_segment(p, caps.a[None], caps.b[None])
-        return np.linalg.norm(p - q, axis=-1) - caps.r
-
     def surface_distance(self, points: np.ndarray, glob_rot: np.ndarray, joint_pos: np.ndarray) -> np.ndarray:
         """(N,) signed distance of points (N, 3) to the body surface, negative inside."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        return self._capsule_distance(points, self._pose(glob_rot, joint_pos)).min(axis=1)
+        caps = self._pose(glob_rot, joint_pos)
+        return capsule_distances(points, caps.a, caps.b, caps.r).min(axis=1)
 
     def bounding_sphere(self, glob_rot: np.ndarray, joint_pos: np.ndarray) -> tuple[np.ndarray, float]:
         """Centre (3,) and radius of a sphere enclosing the whole body."""
@@ -270,7 +271,7 @@ class BodyModel:
             v /= np.linalg.norm(v, axis=1, keepdims=True)
             end = np.where((np.sum(v * u[k], axis=1) < 0.0)[:, None], caps.a[k], caps.b[k])
             p = np.where(on_side[:, None], side, end + caps.r[k, None] * v)
-            dist = self._capsule_distance(p, caps)
+            dist = capsule_distances(p, caps.a, caps.b, caps.r)
             dist[np.arange(m), k] = np.inf
             p = p[dist.min(axis=1) >= -1e-9][:remaining]
             kept.append(p)

@@ -13,6 +13,10 @@ GRAVITY = 9.81
 #: A body with heading h (its forward direction's azimuth in L) has ``Rz(h) @ R_L_M_FACING_X``.
 R_L_M_FACING_X = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
+#: Up along the body in the model frame M (x left, y up, z forward): its y. Read-only.
+UP_M = np.array([0.0, 1.0, 0.0])
+UP_M.flags.writeable = False
+
 
 def level_rotation(up: np.ndarray) -> np.ndarray:
     """R_L_P (3, 3): the level frame P of a sensor frame L whose gravity-up direction in L is ``up`` (3,): P's z

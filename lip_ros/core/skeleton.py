@@ -23,6 +23,7 @@ __all__ = [
     "Skeleton",
     "load_skeleton",
     "forward_kinematics",
+    "calibration_pose",
     "joint_state_names",
     "local_rotations_to_joint_angles",
     "joint_angles_to_local_rotations",
@@ -166,6 +167,14 @@ def forward_kinematics(
         glob[..., j, :, :] = glob[..., p, :, :] @ local_rot[..., j, :, :]
         pos[..., j, :] = pos[..., p, :] + np.einsum("...ab,...b->...a", glob[..., p, :, :], off[..., j, :])
     return glob, pos
+
+
+def calibration_pose(skeleton: Skeleton, pose: str) -> tuple[np.ndarray, np.ndarray]:
+    """Global rotations (24, 3, 3) and positions (24, 3) of a named calibration pose ('a_pose', 't_pose') of
+    ``skeleton`` in its model frame M: the pelvis at the origin, unturned."""
+    local = skeleton.pose_local_rotations(pose)
+    local[0] = np.eye(3)
+    return forward_kinematics(skeleton, local)
 
 
 def joint_state_names(skeleton: Skeleton) -> list[str]:

@@ -65,6 +65,7 @@ from kiss_icp.registration import get_registration
 from kiss_icp.threshold import get_threshold_estimator
 from kiss_icp.voxelization import voxel_down_sample
 
+from lip_ros.core.frames import UP_M
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from lip_ros.hsc4d.mount import WEARER_NEAR_M, HipMountPrior, rotation_between
 from lip_ros.hsc4d.suit_track import SuitTrack
@@ -190,7 +191,7 @@ class WearerFilter:
     def keep(self, points: np.ndarray) -> np.ndarray:
         """(N,) bool: the points (N, 3) in L that are not the wearer."""
         R_M_L = self.T_M_L[:3, :3]
-        up = R_M_L.T @ np.array([0.0, 1.0, 0.0])  # the body's axis (M's y) in L
+        up = R_M_L.T @ UP_M  # the body's axis in L
         d = points + R_M_L.T @ self.T_M_L[:3, 3]  # from the pelvis origin, at -R_M_L^T lever in L
         along = d @ up
         radial_sq = np.einsum("na,na->n", d, d) - along**2

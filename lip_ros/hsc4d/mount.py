@@ -35,11 +35,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lip_ros.core.body import TORSO_PARTS, BodyModel, first_hits
-from lip_ros.core.frames import hip_lidar_rotation
+from lip_ros.core.body import TORSO_PARTS, BodyModel, capsule_distances, first_hits
+from lip_ros.core.frames import UP_M, hip_lidar_rotation
 from lip_ros.core.ground_plane import fit_ground_plane
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from lip_ros.core.skeleton import forward_kinematics, load_skeleton
+from lip_ros.core.skeleton import calibration_pose, load_skeleton
 
 #: returns nearer a hip LiDAR than this are the wearer's own (an arm swung out: the rig's wearer returns up to 0.7 m
 #: away, nothing else comes that close)
@@ -144,6 +144,7 @@ class SpinCheck:
         self._rng = np.random.default_rng([seed, 7])  # its own stream: the checks leave the other fits' draws alone
         self._readings: list[float] = []
         self._ups: list[np.ndarray] = []
+        self._agreed = False  # the check decided from readings that agree
         self._tried = 0
         self.correction_deg: float | None = None  #: once decided: the spin to add to the nominal one (deg)
         self.status = "not checked yet"  #: what was found
@@ -165,8 +166,9 @@ class SpinCheck:
 
     @property
     def up_L(self) -> np.ndarray | None:
-        """(3,) gravity's up in L as the ground of the sweeps read so far shows it (their mean), None if none did."""
-        if not self._ups:
+        """(3,) gravity's up in L as the ground of the sweeps that decided the check shows it (their mean); None
+        until then, and when their readings disagreed or were too few."""
+        if not self._agreed:
             return None
         up = np.sum(self._ups, axis=0)
         return up / np.linalg.norm(up)
@@ -195,7 +197,7 @@ class SpinCheck:
 
     def _spin_of(self, up: np.ndarray) -> float:
         """How far (deg) gravity's ``up`` (3,) in L says the sensor is spun from the nominal mounting."""
-        nominal = self.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])  # M's y (up) through the nominal mounting
+        nominal = self.mount.R_M_L.T @ UP_M  # the body's up through the nominal mounting
         # spun by d more than nominal, R_M_L becomes R_M_L Rz(d): the up in L turns by -d about L's z
         d = np.arctan2(nominal[1], nominal[0]) - np.arctan2(up[1], up[0])
         return float(np.degrees(np.arctan2(np.sin(d), np.cos(d))))
@@ -216,7 +218,8 @@ class SpinCheck:
             a = np.radians(self._readings)
             mean = float(np.degrees(np.arctan2(np.sin(a).sum(), np.cos(a).sum())))
             spread = max(abs((r - mean + 180.0) % 360.0 - 180.0) for r in self._readings)
-            if spread > c.agree_deg:
+            self._agreed = spread <= c.agree_deg
+            if not self._agreed:
                 self.correction_deg = 0.0
                 self.status = (f"as configured: the ground's readings of the spin disagree ({spread:.0f} deg from "
                                "their mean)")
@@ -245,7 +248,7 @@ class SideCheckConfig:
     min_seen_through: int = 30  # a sweep tells a side when the other side's body is seen through by this many
     #                             returns (of a 1024 x 64 sweep's 40 000 or so) ...
     max_share: float = 0.25  # ... and this side's by at most this share of them
-    sweeps: int = 3  # the last sweeps read; each must tell the same side
+    sweeps: int = 3  # the first sweeps read (the wearer standing at the start); each must tell the same side
 
     def __post_init__(self) -> None:
         if not (min(self.lever_spread_m) >= 0.0 and 0.0 < self.erode <= 1.0 and self.margin_m > 0.0
@@ -258,10 +261,8 @@ def _standing_body(girth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     the pelvis frame, at ``girth`` times their radii: the parts of a wearer standing at the start that stay where
     they are whatever the arms do."""
     skeleton = load_skeleton()
-    local = skeleton.pose_local_rotations("a_pose")
-    local[0] = np.eye(3)
     body = BodyModel(skeleton, girth=girth)
-    a, b, r = body.capsules(*forward_kinematics(skeleton, local))
+    a, b, r = body.capsules(*calibration_pose(skeleton, "a_pose"))
     keep = np.isin(body.names, TORSO_PARTS + ("left_thigh", "right_thigh"))
     return a[keep], b[keep], r[keep]
 
@@ -274,7 +275,7 @@ class SideCheck:
     mirrored across the body's middle, each at the lever arm's 27 positions within ``lever_spread_m`` of it
     keeping the one that fits best, and counts the returns seen through each side's body (more than ``margin_m``
     beyond it along their rays): a sweep tells the side whose body is seen through by at most ``max_share`` of the
-    other's count, when that is at least ``min_seen_through``. The last ``sweeps`` sweeps must all tell the same
+    other's count, when that is at least ``min_seen_through``. The first ``sweeps`` sweeps must all tell the same
     side; it is then used: the nominal lever arm mirrored if it is the other (:attr:`lever_m`). Otherwise (the
     body's place not seen: the near arm hides it, or the sensor's field of view misses it) the lever arm stays
     as configured, and :attr:`status` says why. The wearer's own returns do not take part: which of them are the
@@ -284,6 +285,7 @@ class SideCheck:
         self.mount = mount
         self.config = config or SideCheckConfig()
         self.lever_m: tuple[float, float, float] | None = None  #: once decided: the lever arm to use
+        self.hip: str | None = None  #: the hip the wearer's body showed ("right", "left"), None if it did not tell
         self.status = "not checked yet"  #: what was found
         self._body: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
@@ -315,15 +317,17 @@ class SideCheck:
         dirs = (points / ranges[:, None]) @ np.asarray(R_M_L, dtype=np.float64).T  # rays in M
         nominal = np.array(self.mount.lever_m, dtype=np.float64)
         steps = [np.array([-1.0, 0.0, 1.0]) * s for s in c.lever_spread_m]
-        counts = []
+        counts: list[int] = []
         for side in (-1.0, 1.0):  # right hip (M's x is left), left hip
-            best = None
-            for dx, dy, dz in ((x, y, z) for x in steps[0] for y in steps[1] for z in steps[2]):
-                lever = np.array([side * abs(nominal[0]) + side * dx, nominal[1] + dy, nominal[2] + dz])
+            levers = np.array([[side * (abs(nominal[0]) + dx), nominal[1] + dy, nominal[2] + dz]
+                               for dx in steps[0] for dy in steps[1] for dz in steps[2]])
+            # from inside the body the rays would miss it: lever arms there are not tried
+            levers = levers[capsule_distances(levers, *self._body).min(axis=1) > 0.0]
+            best = len(ranges)
+            for lever in levers:
                 hit, _ = first_hits(lever, dirs, *self._body)
-                seen = int(np.count_nonzero(hit < ranges - c.margin_m))
-                best = seen if best is None else min(best, seen)
-                if best == 0:
+                best = min(best, int(np.count_nonzero(hit < ranges - c.margin_m)))
+                if best == 0:  # none fits better
                     break
             counts.append(best)
         return counts[0], counts[1]
@@ -340,23 +344,23 @@ class SideCheck:
         return None
 
     def check(self, sweeps: list[np.ndarray], R_M_L: np.ndarray, up_L: np.ndarray | None = None) -> None:
-        """Decide from the first sweeps of the wearer standing (points (N, 3) in L each; the last ``sweeps`` of
+        """Decide from the first sweeps of the wearer standing (points (N, 3) in L each; the first ``sweeps`` of
         them read) with the mounting's rotation ``R_M_L`` (3, 3) as it stands, levelled first where gravity's up in
         L ``up_L`` (3,) is given (:attr:`SpinCheck.up_L`), the wearer standing upright."""
         if self.decided:
             return
-        if up_L is not None:
-            R_M_L = levelled_mount_rotation(R_M_L, np.array([0.0, 1.0, 0.0]), up_L)
         nominal = tuple(float(v) for v in self.mount.lever_m)
         if nominal[0] == 0.0:
             self.skip("as configured: the nominal lever arm is not to a side")
             return
-        read = sweeps[-self.config.sweeps:]
+        if up_L is not None:
+            R_M_L = levelled_mount_rotation(R_M_L, UP_M, up_L)
+        read = sweeps[:self.config.sweeps]
         said: list[int | None] = []
         for points in read:  # each must tell: the first that does not ends the check
             said.append(self.reading(points, R_M_L))
             if said[-1] is None:
-                self.skip(f"as configured: the wearer's body did not tell a side (sweep {len(said)} of the last "
+                self.skip(f"as configured: the wearer's body did not tell a side (sweep {len(said)} of the first "
                           f"{len(read)} read)")
                 return
         if len(said) < self.config.sweeps:
@@ -366,7 +370,7 @@ class SideCheck:
             self.skip(f"as configured: the wearer's body told both sides ({said.count(1)} sweeps the right hip, "
                       f"{said.count(-1)} the left)")
             return
-        hip = "right" if said[0] > 0 else "left"
+        self.hip = hip = "right" if said[0] > 0 else "left"
         if (nominal[0] < 0.0) == (said[0] > 0):  # M's x is left: a right hip has the lever's x negative
             self.lever_m, self.status = nominal, f"as configured (the wearer's body at the start: the {hip} hip)"
             return

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lip_ros.core.frames import level_rotation
+from lip_ros.core.frames import UP_M, level_rotation
 from lip_ros.core.ground_plane import fit_ground_plane
 from lip_ros.hsc4d.mount import HipMountPrior
 
@@ -47,7 +47,7 @@ def sweep_height(points: np.ndarray, point_ns: np.ndarray, rng: np.random.Genera
     ``point_ns`` (N,), the wearer's own returns removed; None if no ground plane is found."""
     c = config or SweepHeightConfig()
     m = mount or HipMountPrior()
-    R_L_V = level_rotation(m.R_M_L.T @ np.array([0.0, 1.0, 0.0]))  # V: z along the body's axis (M's y)
+    R_L_V = level_rotation(m.R_M_L.T @ UP_M)  # V: z along the body's axis
     local = np.asarray(points, dtype=np.float64) @ R_L_V
     near = np.hypot(local[:, 0], local[:, 1]) <= c.radius_m
     plane = fit_ground_plane(local[near], c.tolerance_m, c.max_tilt_deg, c.min_points, rng)

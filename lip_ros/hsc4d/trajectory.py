@@ -48,6 +48,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from lip_ros.core.frames import UP_M
 from lip_ros.core.imu_sync import ImuSampleLike
 from lip_ros.core.metrics import align_yaw_translation
 from lip_ros.core.rotations import axis_angle_to_matrix, geodesic_angle, nearest_axes_turn
@@ -301,8 +302,7 @@ class TrajectoryPipeline:
         R = self.hand_eye.R_M_L
         if R is None:
             return None
-        axis = np.array([0.0, 1.0, 0.0])  # M's y
-        return float(np.degrees(np.arccos(np.clip((R.T @ axis) @ (self._T_L_M[:3, :3] @ axis), -1.0, 1.0))))
+        return float(np.degrees(np.arccos(np.clip((R.T @ UP_M) @ (self._T_L_M[:3, :3] @ UP_M), -1.0, 1.0))))
 
     @property
     def believed_share(self) -> float | None:
@@ -577,7 +577,7 @@ class TrajectoryPipeline:
             self._check_odometry(first.stamp_ns)
         up = self.suit.up_in_lidar(first.stamp_ns)
         if up is None:
-            up = self.config.mount.R_M_L.T @ np.array([0.0, 1.0, 0.0])
+            up = self.config.mount.R_M_L.T @ UP_M
             self.counts["map frame without the suit's gravity"] += 1
         try:
             self.map_frame = estimate_map_frame(self.odometry.map_points(), first.T_O_L @ self._T_L_M, up,
@@ -639,7 +639,7 @@ class TrajectoryPipeline:
 
     def _turn_mount(self, registered: np.ndarray, predicted: np.ndarray) -> None:
         """Feed one believed sweep's registered and suit-predicted motion (T_Lprev_L) to the mounting's yaw."""
-        axis = self._T_M_L[:3, :3].T @ np.array([0.0, 1.0, 0.0])  # the body's axis in L
+        axis = self._T_M_L[:3, :3].T @ UP_M  # the body's axis in L
         angle = self.mount_yaw.add(registered[:3, 3], predicted[:3, 3], axis)
         if angle is not None:
             self.mount_yaw_deg += float(np.degrees(angle))

@@ -10,7 +10,7 @@ import pytest
 from lip_ros.core.body import BodyModel
 from lip_ros.core.frames import R_L_M_FACING_X
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, rot_x, rot_z
-from lip_ros.core.skeleton import forward_kinematics, load_skeleton
+from lip_ros.core.skeleton import calibration_pose, load_skeleton
 from lip_ros.hsc4d.mount import (
     HipMountPrior,
     LeverArmEstimator,
@@ -75,7 +75,7 @@ def test_the_spin_stays_as_configured_when_the_ground_does_not_tell():
     split = SpinCheck(HipMountPrior())
     for spin in (0.0, 40.0, 0.0, 40.0, 0.0):
         split.add(_ground_in_lidar(HipMountPrior(spin_deg=spin), rng))
-    assert split.correction_deg == 0.0 and "disagree" in split.status
+    assert split.correction_deg == 0.0 and "disagree" in split.status and split.up_L is None
     skipped = SpinCheck(HipMountPrior())
     skipped.skip("as saved (resumed)")
     assert skipped.decided and skipped.add(_ground_in_lidar(HipMountPrior(spin_deg=180.0), rng))
@@ -89,9 +89,7 @@ def _standing_sweep(mount: HipMountPrior, lever_m: tuple[float, float, float] | 
     "room" (flat ground, a wall all round 4 m away), "field" (the ground only) or "sky" (nothing beyond the body),
     returns nearer than ``min_range_m`` lost."""
     skeleton = load_skeleton()
-    local = skeleton.pose_local_rotations("a_pose")
-    local[0] = np.eye(3)
-    glob, joints = forward_kinematics(skeleton, local)
+    glob, joints = calibration_pose(skeleton, "a_pose")
     elevation, azimuth = np.meshgrid(np.radians(np.linspace(-16.6, 16.6, 64)), np.linspace(-np.pi, np.pi, 512,
                                                                                           endpoint=False))
     dirs_L = np.column_stack([(np.cos(elevation) * np.cos(azimuth)).ravel(),
@@ -135,6 +133,7 @@ def test_the_hip_the_sensor_is_worn_on_is_read_from_the_wearers_body(worn, spin_
     check.check([np.concatenate([sweep, np.full((50, 3), np.nan), np.zeros((5, 3))])] * SideCheckConfig().sweeps,
                 mount.R_M_L)
     assert check.decided
+    assert check.hip == worn
     if worn == "right":
         assert check.lever_m == mount.lever_m and not check.mirrored
         assert check.status == "as configured (the wearer's body at the start: the right hip)"
@@ -143,20 +142,52 @@ def test_the_hip_the_sensor_is_worn_on_is_read_from_the_wearers_body(worn, spin_
         assert "puts the LiDAR on the left hip" in check.status and "(set mount_lever_m to it)" in check.status
 
 
+def test_a_mounting_tilted_otherwise_than_the_nominal_is_levelled_before_the_hip_is_read():
+    """A sensor tilted 48 deg where the nominal says 30, on the left hip: the check reads the sweeps through the
+    nominal rotation levelled with the ground's up that the spin check read from them (the wearer upright), which
+    puts the body where it stands: the other hip's body is then seen through by about twice as many returns as
+    through the nominal rotation (1600 against 800 here), and the left hip is told."""
+    true, nominal = HipMountPrior(tilt_up_deg=48.0), HipMountPrior()
+    sweep = _standing_sweep(true, (0.15, 0.0, -0.1))
+    spin = SpinCheck(nominal)
+    while not spin.add(sweep):
+        pass
+    assert spin.up_L is not None and spin.correction_deg == 0.0
+    assert _angle_deg(np.eye(3), rotation_between(spin.up_L, true.R_M_L.T @ [0.0, 1.0, 0.0])) < 0.5
+    check, used = SideCheck(nominal), []
+    seen_through = check.seen_through
+    check.seen_through = lambda points, R_M_L: used.append(R_M_L) or seen_through(points, R_M_L)
+    check.check([sweep] * 3, nominal.R_M_L, spin.up_L)
+    assert check.hip == "left" and check.mirrored and len(used) == 3
+    assert _angle_deg(used[0], true.R_M_L) < 3.0 < _angle_deg(nominal.R_M_L, true.R_M_L)
+    assert check.seen_through(sweep, used[0])[0] > 1.5 * check.seen_through(sweep, nominal.R_M_L)[0]
+
+
+def test_a_sweep_tells_a_side_only_when_the_other_sides_body_is_seen_through_and_its_own_hardly():
+    """The rule of :meth:`SideCheck.reading` on the counts of returns seen through each side's body: at least
+    ``min_seen_through`` on the other side, at most ``max_share`` of that on this side."""
+    check, c = SideCheck(HipMountPrior()), SideCheckConfig()
+    cases = {(0, c.min_seen_through): 1, (c.min_seen_through, 0): -1, (0, c.min_seen_through - 1): None,
+             (10, 40): 1, (11, 40): None, (40, 10): -1, (40, 11): None, (0, 0): None}
+    for counts, told in cases.items():
+        check.seen_through = lambda points, R_M_L, counts=counts: counts
+        assert check.reading(np.zeros((1, 3)), np.eye(3)) == told, counts
+
+
 def test_the_hip_stays_as_configured_when_the_wearers_body_does_not_tell():
     """Nothing seen beyond the body (the sky), a wearer on an open field (the ground seen only under the rays that
     would meet the other hip's body), fewer sweeps than ``sweeps``, sweeps telling both hips, a nominal lever arm
     at the body's middle, or a check skipped: the lever arm stays as configured, and the status says why. Only the
-    last ``sweeps`` sweeps are read."""
+    first ``sweeps`` sweeps are read."""
     mount = HipMountPrior()
     right, left = _standing_sweep(mount), _standing_sweep(mount, (0.15, 0.0, -0.1))
     cases = [
-        ("did not tell a side (sweep 1 of the last 3 read)", [_standing_sweep(mount, scene="sky")] * 4),
+        ("did not tell a side (sweep 1 of the first 3 read)", [_standing_sweep(mount, scene="sky")] * 4),
         # an open field: the ground is seen only under the rays that meet the other hip's body, too few of them
-        ("did not tell a side (sweep 1 of the last 3 read)", [_standing_sweep(mount, (0.15, 0.0, -0.1), "field")] * 3),
-        ("did not tell a side (sweep 2 of the last 3 read)", [left, _standing_sweep(mount, scene="sky"), left]),
+        ("did not tell a side (sweep 1 of the first 3 read)", [_standing_sweep(mount, (0.15, 0.0, -0.1), "field")] * 3),
+        ("did not tell a side (sweep 2 of the first 3 read)", [left, _standing_sweep(mount, scene="sky"), left]),
         ("2 sweeps read, 3 needed", [left, left]),
-        ("told both sides (2 sweeps the right hip, 1 the left)", [left, right, left, right]),
+        ("told both sides (2 sweeps the right hip, 1 the left)", [left, right, right, left]),
     ]
     for status, sweeps in cases:
         check = SideCheck(mount)

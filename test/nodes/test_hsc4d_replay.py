@@ -200,7 +200,6 @@ def test_a_20hz_lidar_and_a_240hz_suit_are_taken_sweep_by_sweep_and_sample_by_sa
     assert int(counts["sweeps posed by the suit's motion (registration rate cap)"]) >= frames_in // 2 - 5
 
 
-
 def test_a_lidar_on_the_other_hip_is_put_there_and_said(tmp_path):
     """The hip LiDAR on the left hip, the graph told the right (the contract's "about 0.15 m to the side" does not
     say which): the first sweeps see the ground and the site where the wearer's torso and thighs would stand on the
