@@ -343,18 +343,23 @@ class SideCheck:
             return -1
         return None
 
-    def check(self, sweeps: list[np.ndarray], R_M_L: np.ndarray, up_L: np.ndarray | None = None) -> None:
+    def check(self, sweeps: list[np.ndarray], R_M_L: np.ndarray, up_L: np.ndarray | None) -> None:
         """Decide from the first sweeps of the wearer standing (points (N, 3) in L each; the first ``sweeps`` of
-        them read) with the mounting's rotation ``R_M_L`` (3, 3) as it stands, levelled first where gravity's up in
-        L ``up_L`` (3,) is given (:attr:`SpinCheck.up_L`), the wearer standing upright."""
+        them read) with the mounting's rotation ``R_M_L`` (3, 3) as it stands, levelled with gravity's up in L
+        ``up_L`` (3,; :attr:`SpinCheck.up_L`), the wearer standing upright. Without ``up_L`` (the ground at the
+        start did not confirm the rotation: a sensor hardly tilted, whose spin the ground does not show) the
+        sides would be read through a rotation perhaps spun half a turn: the lever arm stays as configured."""
         if self.decided:
             return
         nominal = tuple(float(v) for v in self.mount.lever_m)
         if nominal[0] == 0.0:
             self.skip("as configured: the nominal lever arm is not to a side")
             return
-        if up_L is not None:
-            R_M_L = levelled_mount_rotation(R_M_L, UP_M, up_L)
+        if up_L is None:
+            self.skip("as configured: not read (the ground at the start did not confirm the mounting's rotation, "
+                      "its spin among it)")
+            return
+        R_M_L = levelled_mount_rotation(R_M_L, UP_M, up_L)
         read = sweeps[:self.config.sweeps]
         said: list[int | None] = []
         for points in read:  # each must tell: the first that does not ends the check

@@ -496,7 +496,7 @@ class TrajectoryPipeline:
     def _use_side(self, sweeps: list[np.ndarray]) -> None:
         """Put the nominal mounting on the hip the wearer's body in the first ``sweeps`` showed, if it is the other
         (the lever arm mirrored across the body's middle, its estimate starting from there), through the mounting's
-        rotation levelled with the ground's up the spin check read."""
+        rotation levelled with the ground's up the spin check read (not read without it)."""
         self.side.check(sweeps, self.config.mount.R_M_L, self.spin.up_L)
         if not self.side.mirrored:
             return

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lip_ros.core.body import BodyModel
-from lip_ros.core.frames import R_L_M_FACING_X
+from lip_ros.core.frames import R_L_M_FACING_X, UP_M
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, rot_x, rot_z
 from lip_ros.core.skeleton import calibration_pose, load_skeleton
 from lip_ros.hsc4d.mount import (
@@ -131,7 +131,7 @@ def test_the_hip_the_sensor_is_worn_on_is_read_from_the_wearers_body(worn, spin_
         assert left == 0 and right > 100
     check = SideCheck(mount)
     check.check([np.concatenate([sweep, np.full((50, 3), np.nan), np.zeros((5, 3))])] * SideCheckConfig().sweeps,
-                mount.R_M_L)
+                mount.R_M_L, mount.R_M_L.T @ UP_M)
     assert check.decided
     assert check.hip == worn
     if worn == "right":
@@ -177,9 +177,12 @@ def test_a_sweep_tells_a_side_only_when_the_other_sides_body_is_seen_through_and
 def test_the_hip_stays_as_configured_when_the_wearers_body_does_not_tell():
     """Nothing seen beyond the body (the sky), a wearer on an open field (the ground seen only under the rays that
     would meet the other hip's body), fewer sweeps than ``sweeps``, sweeps telling both hips, a nominal lever arm
-    at the body's middle, or a check skipped: the lever arm stays as configured, and the status says why. Only the
-    first ``sweeps`` sweeps are read."""
+    at the body's middle, the mounting's rotation not confirmed by the ground (no up: a sensor hardly tilted,
+    whose spin the ground does not show; read through the nominal rotation, a level sensor spun half a turn puts
+    the rig's right-hip wearers on the left), or a check skipped: the lever arm stays as configured, and the
+    status says why. Only the first ``sweeps`` sweeps are read."""
     mount = HipMountPrior()
+    up = mount.R_M_L.T @ UP_M
     right, left = _standing_sweep(mount), _standing_sweep(mount, (0.15, 0.0, -0.1))
     cases = [
         ("did not tell a side (sweep 1 of the first 3 read)", [_standing_sweep(mount, scene="sky")] * 4),
@@ -191,14 +194,17 @@ def test_the_hip_stays_as_configured_when_the_wearers_body_does_not_tell():
     ]
     for status, sweeps in cases:
         check = SideCheck(mount)
-        check.check(sweeps, mount.R_M_L)
-        assert check.lever_m == mount.lever_m and not check.mirrored and status in check.status
+        check.check(sweeps, mount.R_M_L, up)
+        assert check.lever_m == mount.lever_m and not check.mirrored and check.hip is None and status in check.status
+    unconfirmed = SideCheck(mount)
+    unconfirmed.check([left] * 3, mount.R_M_L, None)
+    assert not unconfirmed.mirrored and "the ground at the start did not confirm" in unconfirmed.status
     middle = SideCheck(HipMountPrior(lever_m=(0.0, 0.0, -0.15)))
-    middle.check([left] * 3, mount.R_M_L)
+    middle.check([left] * 3, mount.R_M_L, up)
     assert middle.lever_m == (0.0, 0.0, -0.15) and "not to a side" in middle.status
     skipped = SideCheck(mount)
     skipped.skip("as saved (resumed)")
-    skipped.check([left] * 3, mount.R_M_L)
+    skipped.check([left] * 3, mount.R_M_L, up)
     assert skipped.decided and not skipped.mirrored and skipped.status == "as saved (resumed)"
 
 
