@@ -277,9 +277,10 @@ class SideCheck:
     beyond it along their rays): a sweep tells the side whose body is seen through by at most ``max_share`` of the
     other's count, when that is at least ``min_seen_through``. The first ``sweeps`` sweeps must all tell the same
     side; it is then used: the nominal lever arm mirrored if it is the other (:attr:`lever_m`). Otherwise (the
-    body's place not seen: the near arm hides it, or the sensor's field of view misses it) the lever arm stays
-    as configured, and :attr:`status` says why. The wearer's own returns do not take part: which of them are the
-    near arm and which the body beyond depends on the arms and on the sensor's minimum range."""
+    body's place not seen: the near arm hides it, or the sensor's field of view misses it; or the mounting's
+    rotation not confirmed by the ground) the lever arm stays as configured, and :attr:`status` says why. The
+    wearer's own returns do not take part: which of them are the near arm and which the body beyond depends on the
+    arms and on the sensor's minimum range."""
 
     def __init__(self, mount: HipMountPrior, config: SideCheckConfig | None = None) -> None:
         self.mount = mount
