@@ -10,8 +10,10 @@ up it read (as ``TrajectoryPipeline._use_side``). Each capture is "found" (read
 on its true hip), "none" (the check did not tell: the lever arm stays as
 configured) or "wrong". Variants: the rig's own (``base``); the LiDAR's minimum
 range 0.3 or 0.1 m instead of 0.5 (it sees its own side's arm); the true tilt
-15, 45 or 50 deg (the method is told 30); spun 180 deg; hardly tilted (3 deg)
-and spun 180 (the ground shows no spin: not read); 2048 columns; 20 Hz;
+15, 45 or 50 deg (the method is told 30); spun 180 deg; spun -25 deg (under
+the spin check's 30: not corrected, the sides read through a rotation that far
+off); hardly tilted (3 deg) and spun 180 (the ground shows no spin: not read);
+2048 columns; 20 Hz;
 the wearer 0.8 or 1.35 times as thick (the method assumes the contract's body);
 the lever arm 4-12 cm off the nominal along each axis (``lever``, six levers,
 three per hip, each seed; the last beyond the 5 / 5 / 10 cm the check tries).
@@ -50,6 +52,7 @@ VARIANTS: dict[str, tuple[dict, float, float | None, tuple]] = {
     "tilt45": ({"mount_tilt_up_deg": 45.0}, 0.5, None, (None, LEFT)),
     "tilt50": ({"mount_tilt_up_deg": 50.0}, 0.5, None, (None, LEFT)),
     "spin180": ({"mount_spin_deg": 180.0}, 0.5, None, (None, LEFT)),
+    "spin-25": ({"mount_spin_deg": -25.0}, 0.5, None, (None, LEFT)),
     "level180": ({"mount_tilt_up_deg": 3.0, "mount_spin_deg": 180.0}, 0.5, None, (None, LEFT)),
     "2048": ({"columns": 2048}, 0.5, None, (None, LEFT)),
     "20hz": ({"rate_hz": 20.0}, 0.5, None, (None, LEFT)),
