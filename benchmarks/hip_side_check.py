@@ -14,7 +14,8 @@ range 0.3 or 0.1 m instead of 0.5 (it sees its own side's arm); the true tilt
 the spin check's 30: not corrected, the sides read through a rotation that far
 off); hardly tilted (3 deg) and spun 180 (the ground shows no spin: not read);
 2048 columns; 20 Hz;
-the wearer 0.8 or 1.35 times as thick (the method assumes the contract's body);
+the wearer 0.8 or 1.35 times as thick, or 0.8 or 1.2 times the contract's size
+(the rig's: 0.9-1.1; the method assumes the contract's body);
 the lever arm 4-12 cm off the nominal along each axis (``lever``, six levers,
 three per hip, each seed; the last beyond the 5 / 5 / 10 cm the check tries).
 
@@ -39,6 +40,7 @@ import numpy as np
 
 from lip_ros.core.body import BodyModel
 from lip_ros.hsc4d.mount import HipMountPrior, SideCheck, SpinCheck
+from lip_ros.rig.motion import make_site_motion
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 LEFT = (0.15, 0.0, -0.1)  # the nominal lever arm mirrored
@@ -58,6 +60,8 @@ VARIANTS: dict[str, tuple[dict, float, float | None, tuple]] = {
     "20hz": ({"rate_hz": 20.0}, 0.5, None, (None, LEFT)),
     "girth0.8": ({}, 0.5, 0.8, (None, LEFT)),
     "girth1.35": ({}, 0.5, 1.35, (None, LEFT)),
+    "scale0.8": ({}, 0.5, None, (None, LEFT)),
+    "scale1.2": ({}, 0.5, None, (None, LEFT)),
     "lever": ({}, 0.5, None, ((-0.19, 0.03, -0.03), (0.19, 0.03, -0.03), (-0.12, -0.04, -0.17), (0.12, -0.04, -0.17),
                               (-0.21, -0.02, -0.22), (0.21, -0.02, -0.22))),
 }
@@ -95,6 +99,10 @@ def main(argv: list[str] | None = None) -> int:
                                            **({} if lever is None else {"mount_lever_m": lever}))
                 capture = SiteCapture(config)
                 capture.lidar = dataclasses.replace(capture.lidar, min_range=min_range)
+                if name.startswith("scale"):  # the same walk by a wearer of another size (the rig's: 0.9-1.1)
+                    capture.motion = make_site_motion(capture.terrain, args.seconds, seed,
+                                                      body_scale=float(name[len("scale"):]))
+                    capture.body = BodyModel(capture.motion.skeleton, girth=capture.body.girth)
                 if girth is not None:
                     capture.body = BodyModel(capture.motion.skeleton, girth=girth)
                 true = "left" if lever is not None and lever[0] > 0.0 else "right"

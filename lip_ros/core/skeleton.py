@@ -171,10 +171,8 @@ def forward_kinematics(
 
 def calibration_pose(skeleton: Skeleton, pose: str) -> tuple[np.ndarray, np.ndarray]:
     """Global rotations (24, 3, 3) and positions (24, 3) of a named calibration pose ('a_pose', 't_pose') of
-    ``skeleton`` in its model frame M: the pelvis at the origin, unturned."""
-    local = skeleton.pose_local_rotations(pose)
-    local[0] = np.eye(3)
-    return forward_kinematics(skeleton, local)
+    ``skeleton`` in its model frame M, the pelvis at the origin."""
+    return forward_kinematics(skeleton, skeleton.pose_local_rotations(pose))
 
 
 def joint_state_names(skeleton: Skeleton) -> list[str]:

@@ -189,13 +189,7 @@ class SpinCheck:
             return None
         return plane.normal
 
-    def reading_deg(self, points: np.ndarray) -> float | None:
-        """How far (deg) one sweep's ground (points (N, 3) in L) says the sensor is spun from the nominal mounting;
-        None where :meth:`ground_up` finds no up."""
-        up = self.ground_up(points)
-        return None if up is None else self._spin_of(up)
-
-    def _spin_of(self, up: np.ndarray) -> float:
+    def spin_of(self, up: np.ndarray) -> float:
         """How far (deg) gravity's ``up`` (3,) in L says the sensor is spun from the nominal mounting."""
         nominal = self.mount.R_M_L.T @ UP_M  # the body's up through the nominal mounting
         # spun by d more than nominal, R_M_L becomes R_M_L Rz(d): the up in L turns by -d about L's z
@@ -213,7 +207,7 @@ class SpinCheck:
         up = self.ground_up(points[np.isfinite(points).all(axis=1)])
         if up is not None:
             self._ups.append(up)
-            self._readings.append(self._spin_of(up))
+            self._readings.append(self.spin_of(up))
         if len(self._readings) >= c.sweeps:
             a = np.radians(self._readings)
             mean = float(np.degrees(np.arctan2(np.sin(a).sum(), np.cos(a).sum())))

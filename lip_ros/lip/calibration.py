@@ -63,7 +63,7 @@ from lip_ros.core.rotations import (
     quat_to_matrix,
     rot_z,
 )
-from lip_ros.core.skeleton import Skeleton, forward_kinematics, load_skeleton
+from lip_ros.core.skeleton import Skeleton, calibration_pose, load_skeleton
 from lip_ros.lip.gait_heading import GaitHeadingConfig, stride_heading
 
 __all__ = [
@@ -261,7 +261,7 @@ def load_calibration(path: str | Path) -> Calibration:
 def pose_bone_rotations(skeleton: Skeleton, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     """Per calibration pose, (S, 3, 3) R_M_B of each named sensor's bone (the body's root frame is M)."""
     joints = [skeleton.index(skeleton.lip_imus[n]["bone_joint"]) for n in names]
-    return {p: forward_kinematics(skeleton, skeleton.pose_local_rotations(p))[0][joints] for p in POSES}
+    return {p: calibration_pose(skeleton, p)[0][joints] for p in POSES}
 
 
 def _mean_rotation(rot: np.ndarray) -> np.ndarray:

@@ -48,7 +48,7 @@ def test_the_spin_about_the_sensors_axis_is_read_from_the_ground(spin_deg):
     rng = np.random.default_rng(1)
     true = HipMountPrior(tilt_up_deg=28.0, spin_deg=spin_deg)
     check = SpinCheck(HipMountPrior())
-    reading = check.reading_deg(_ground_in_lidar(true, rng))
+    reading = check.spin_of(check.ground_up(_ground_in_lidar(true, rng)))
     assert abs((reading - spin_deg + 180.0) % 360.0 - 180.0) < 0.5
     decided = [check.add(_ground_in_lidar(true, rng)) for _ in range(SpinCheckConfig().sweeps)]
     assert decided == [False] * (len(decided) - 1) + [True] and check.decided
@@ -67,11 +67,11 @@ def test_the_spin_stays_as_configured_when_the_ground_does_not_tell():
     and the status says why."""
     rng = np.random.default_rng(2)
     level = SpinCheck(HipMountPrior(tilt_up_deg=3.0))
-    assert level.reading_deg(_ground_in_lidar(HipMountPrior(tilt_up_deg=3.0, spin_deg=180.0), rng)) is None
+    assert level.ground_up(_ground_in_lidar(HipMountPrior(tilt_up_deg=3.0, spin_deg=180.0), rng)) is None
     while not level.add(_ground_in_lidar(HipMountPrior(tilt_up_deg=3.0, spin_deg=180.0), rng)):
         pass
     assert level.correction_deg == 0.0 and "not read in 30 sweeps" in level.status
-    assert SpinCheck(HipMountPrior()).reading_deg(_ground_in_lidar(HipMountPrior(spin_deg=90.0), rng, 3.0)) is None
+    assert SpinCheck(HipMountPrior()).ground_up(_ground_in_lidar(HipMountPrior(spin_deg=90.0), rng, 3.0)) is None
     split = SpinCheck(HipMountPrior())
     for spin in (0.0, 40.0, 0.0, 40.0, 0.0):
         split.add(_ground_in_lidar(HipMountPrior(spin_deg=spin), rng))
