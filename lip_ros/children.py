@@ -7,7 +7,7 @@ otherwise: it goes on publishing and subscribing in the same ROS domain, and
 the next run there gets its messages and its ``/clock``. On Linux
 :func:`start_child` has the kernel send the child ``SIGTERM`` when its parent
 dies (``PR_SET_PDEATHSIG``), which the package's executables take as a clean
-stop (:func:`lip_ros.nodes.base.stop_on_signals`); a child whose parent died
+stop (:func:`lip_ros.signals.stop_on_signals`); a child whose parent died
 before that was set exits at once. Elsewhere it is a plain ``subprocess.Popen``.
 """
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import gc
 import re
-import signal
 import sys
 import threading
 from collections import Counter, deque
@@ -60,12 +59,13 @@ from lip_ros.core.clock import SteppingClock
 from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import use_lip_dds_profile
 from lip_ros.resources import params_path
+from lip_ros.signals import stop_on_signals
 
 __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "non_negative", "numbers", "GraphNode",
            "LatencyWindow", "RELIABLE", "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input",
            "LATCHED", "POLL_PERIOD_S", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals",
            "LocalTopics", "BetweenNodesPublisher", "DIRECT_INPUTS_PARAM", "tf_publisher", "rejection_reason",
-           "read_imu", "SKIPPED", "stop_on_signals"]
+           "read_imu", "SKIPPED"]
 
 #: How ``GraphNode.count_frame`` names a frame that ended without a pose.
 SKIPPED = "skipped"
@@ -559,14 +559,6 @@ def tf_publisher(node: Node) -> Any:
         node.get_logger().info("tf2_msgs is not installed: nothing is broadcast on /tf")
         return None
     return node.create_publisher(tf_type, "/tf", RELIABLE)
-
-
-def stop_on_signals() -> threading.Event:
-    """An event that SIGINT and SIGTERM set (instead of interrupting whatever runs: a callback, a bag write)."""
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    return stop
 
 
 def _spin_each(nodes: Sequence[Node], stop: threading.Event) -> list[BaseException]:

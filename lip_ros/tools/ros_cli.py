@@ -13,7 +13,7 @@ import rclpy
 from rclpy.signals import SignalHandlerOptions
 
 from lip_ros.middleware import use_lip_dds_profile
-from lip_ros.nodes.base import stop_on_signals
+from lip_ros.signals import stop_on_signals
 
 __all__ = ["ToolError", "ArgumentParser", "tool_args", "start_ros", "stop_on_signals", "run_tool", "Progress",
            "installed_script"]

@@ -48,10 +48,9 @@ def _kill_and_wait(parent: subprocess.Popen, children: list[int], timeout_s: flo
 
 
 def test_a_killed_hsc4d_graph_takes_its_body_node_along(ros_node, tmp_path: Path):
-    """Killed once the body node is ready. Its name is on the graph before its start-up is done, and a body node
-    told to stop during its start-up ends only once that is done: killed at its name, under a whole suite's load,
-    it outlived the 15 s allowed here once (session 42's fresh-clone run; that start-up was the likely cause, not
-    confirmed)."""
+    """Killed once the body node is ready (its name is on the graph before its start-up is done, and a body node
+    told to stop during its start-up ends only once that is done). It outlived the 15 s allowed here twice under a
+    whole suite's load: its signal handler waited for ever on the stop event's lock (``test/test_signals.py``)."""
     log = tmp_path / "graph.log"
     with log.open("w") as stderr:
         graph = subprocess.Popen([console_script("fusion_node"), "--ros-args", "-p", "branch:=hsc4d"],
