@@ -13,7 +13,8 @@ range 0.3 or 0.1 m instead of 0.5 (it sees its own side's arm); the true tilt
 15, 45 or 50 deg (the method is told 30); spun 180 deg; spun -25 deg (under
 the spin check's 30: not corrected, the sides read through a rotation that far
 off); hardly tilted (3 deg) and spun 180 (the ground shows no spin: not read);
-2048 columns; 20 Hz;
+2048 or 512 columns; 16, 32 or 128 beams over the OS1-64's field of view, and
+32 beams at 512 columns (fewer or more returns seen through the same body); 20 Hz;
 the wearer 0.8 or 1.35 times as thick, or 0.8 or 1.2 times the contract's size
 (the rig's: 0.9-1.1; the method assumes the contract's body);
 the lever arm 4-12 cm off the nominal along each axis (``lever``, six levers,
@@ -44,26 +45,31 @@ from lip_ros.rig.motion import make_site_motion
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 LEFT = (0.15, 0.0, -0.1)  # the nominal lever arm mirrored
-#: name: (SiteCaptureConfig fields, the LiDAR's minimum range (m; the rig's 0.5), the wearer's girth (None: the
-#: seed's), the true lever arms (None: the nominal's, on the right hip))
-VARIANTS: dict[str, tuple[dict, float, float | None, tuple]] = {
-    "base": ({}, 0.5, None, (None, LEFT)),
-    "mr0.3": ({}, 0.3, None, (None, LEFT)),
-    "mr0.1": ({}, 0.1, None, (None, LEFT)),
-    "tilt15": ({"mount_tilt_up_deg": 15.0}, 0.5, None, (None, LEFT)),
-    "tilt45": ({"mount_tilt_up_deg": 45.0}, 0.5, None, (None, LEFT)),
-    "tilt50": ({"mount_tilt_up_deg": 50.0}, 0.5, None, (None, LEFT)),
-    "spin180": ({"mount_spin_deg": 180.0}, 0.5, None, (None, LEFT)),
-    "spin-25": ({"mount_spin_deg": -25.0}, 0.5, None, (None, LEFT)),
-    "level180": ({"mount_tilt_up_deg": 3.0, "mount_spin_deg": 180.0}, 0.5, None, (None, LEFT)),
-    "2048": ({"columns": 2048}, 0.5, None, (None, LEFT)),
-    "20hz": ({"rate_hz": 20.0}, 0.5, None, (None, LEFT)),
-    "girth0.8": ({}, 0.5, 0.8, (None, LEFT)),
-    "girth1.35": ({}, 0.5, 1.35, (None, LEFT)),
-    "scale0.8": ({}, 0.5, None, (None, LEFT)),
-    "scale1.2": ({}, 0.5, None, (None, LEFT)),
-    "lever": ({}, 0.5, None, ((-0.19, 0.03, -0.03), (0.19, 0.03, -0.03), (-0.12, -0.04, -0.17), (0.12, -0.04, -0.17),
-                              (-0.21, -0.02, -0.22), (0.21, -0.02, -0.22))),
+#: name: (SiteCaptureConfig fields, OusterModel fields (the rig's OS1-64: 64 beams, minimum range 0.5 m), the wearer's
+#: girth (None: the seed's), the true lever arms (None: the nominal's, on the right hip))
+VARIANTS: dict[str, tuple[dict, dict, float | None, tuple]] = {
+    "base": ({}, {}, None, (None, LEFT)),
+    "mr0.3": ({}, {"min_range": 0.3}, None, (None, LEFT)),
+    "mr0.1": ({}, {"min_range": 0.1}, None, (None, LEFT)),
+    "tilt15": ({"mount_tilt_up_deg": 15.0}, {}, None, (None, LEFT)),
+    "tilt45": ({"mount_tilt_up_deg": 45.0}, {}, None, (None, LEFT)),
+    "tilt50": ({"mount_tilt_up_deg": 50.0}, {}, None, (None, LEFT)),
+    "spin180": ({"mount_spin_deg": 180.0}, {}, None, (None, LEFT)),
+    "spin-25": ({"mount_spin_deg": -25.0}, {}, None, (None, LEFT)),
+    "level180": ({"mount_tilt_up_deg": 3.0, "mount_spin_deg": 180.0}, {}, None, (None, LEFT)),
+    "2048": ({"columns": 2048}, {}, None, (None, LEFT)),
+    "512": ({"columns": 512}, {}, None, (None, LEFT)),
+    "32beams": ({}, {"beams": 32}, None, (None, LEFT)),
+    "16beams": ({}, {"beams": 16}, None, (None, LEFT)),
+    "128beams": ({}, {"beams": 128}, None, (None, LEFT)),
+    "32x512": ({"columns": 512}, {"beams": 32}, None, (None, LEFT)),
+    "20hz": ({"rate_hz": 20.0}, {}, None, (None, LEFT)),
+    "girth0.8": ({}, {}, 0.8, (None, LEFT)),
+    "girth1.35": ({}, {}, 1.35, (None, LEFT)),
+    "scale0.8": ({}, {}, None, (None, LEFT)),
+    "scale1.2": ({}, {}, None, (None, LEFT)),
+    "lever": ({}, {}, None, ((-0.19, 0.03, -0.03), (0.19, 0.03, -0.03), (-0.12, -0.04, -0.17), (0.12, -0.04, -0.17),
+                             (-0.21, -0.02, -0.22), (0.21, -0.02, -0.22))),
 }
 SEEDS = (0, 1, 2, 3, 4, 5, 7, 11, 1000, 1001, 1002)
 
@@ -91,14 +97,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     table: dict[str, dict[str, Counter]] = {}
     for name in args.variants:
-        fields, min_range, girth, levers = VARIANTS[name]
+        fields, lidar, girth, levers = VARIANTS[name]
         table[name] = {"right": Counter(), "left": Counter()}
         for seed in args.seeds:
             for lever in levers:
                 config = SiteCaptureConfig(seed=seed, seconds=args.seconds, **fields,
                                            **({} if lever is None else {"mount_lever_m": lever}))
                 capture = SiteCapture(config)
-                capture.lidar = dataclasses.replace(capture.lidar, min_range=min_range)
+                capture.lidar = dataclasses.replace(capture.lidar, **lidar)
                 if name.startswith("scale"):  # the same walk by a wearer of another size (the rig's: 0.9-1.1)
                     capture.motion = make_site_motion(capture.terrain, args.seconds, seed,
                                                       body_scale=float(name[len("scale"):]))

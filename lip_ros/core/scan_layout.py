@@ -12,6 +12,8 @@ elevation, and :class:`ScanLayout` answers which columns can see a place and
 how far apart neighbouring rows look. A staggered cloud (each row as its beam
 saw it, up to several degrees apart in azimuth) has rows whole columns apart:
 :attr:`ScanLayout.row_shift` and :func:`destagger` line them up.
+:func:`returns_per_square_degree` reads how densely a sweep samples the view
+from its points alone (unorganized, any sensor).
 
 Model: the ray of row i, column j looks at azimuth
 ``column0 + row_offset[i] + direction * 2 pi j / W`` (radians, about the
@@ -28,14 +30,17 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-__all__ = ["ScanLayout", "fit_scan_layout", "destagger", "MIN_AGREEMENT"]
+__all__ = ["ScanLayout", "fit_scan_layout", "destagger", "MIN_AGREEMENT", "returns_per_square_degree"]
 
 #: Mean resultant length the residual azimuths must reach for a fit (1: every point agrees exactly; noise and
 #: row offsets of a fraction of a degree leave > 0.99; the wrong sweep direction gives about 0).
 MIN_AGREEMENT = 0.9
 _MAX_POINTS = 20000  # points used by a fit (evenly subsampled)
 _MIN_POINTS = 100
+_DENSITY_NEIGHBOURS = 64  # directions round each sampled return whose spread gives the density there
+_DENSITY_SAMPLES = 2000  # returns the density is read round (evenly subsampled)
 
 
 def _wrap(angle: np.ndarray | float) -> np.ndarray | float:
@@ -145,3 +150,29 @@ def fit_scan_layout(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> ScanLayout |
     if np.count_nonzero(np.isfinite(np.diff(row_elevation))) == 0:
         return None  # no two neighbouring rows with returns: the rows' spacing is unknown
     return ScanLayout(width, float(_wrap(column0 + centre)), direction, offsets, row_elevation, float(abs(mean)))
+
+
+def returns_per_square_degree(points: np.ndarray) -> float:
+    """How densely a sweep's returns sample the sensor's view, per square degree, from the points (N, 3) alone
+    (any order; the sensor at the origin; non-finite and zero points left out); NaN if there are too few.
+
+    Round each of up to 2000 returns (evenly subsampled), the k-th nearest direction of the next 64 (chord on the
+    unit sphere) bounds a cap holding k - 1/2 of them on average; the density that fits the 64 caps (least
+    squares), median over the returns. Grids of 16-128 beams by 512-2048 columns over 45 deg are read within 5 %
+    (half of them without returns, as under the sky, too), but 16 by 2048 (rows 16 times as far apart as columns)
+    15 % low; the rig's OS1 sweeps within 6 %. The k-th nearest alone was up to 35 % off where rows and columns
+    are unequally far apart (test/core/test_scan_layout.py).
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    ranges = np.linalg.norm(points, axis=1)
+    keep = np.isfinite(ranges) & (ranges > 0.0)
+    if np.count_nonzero(keep) <= _DENSITY_NEIGHBOURS:
+        return float("nan")
+    dirs = points[keep] / ranges[keep, None]
+    queries = dirs[np.linspace(0, len(dirs) - 1, min(_DENSITY_SAMPLES, len(dirs))).astype(int)]
+    chord, _ = cKDTree(dirs).query(queries, _DENSITY_NEIGHBOURS + 1)  # the first is the return itself
+    caps = np.pi * chord[:, 1:] ** 2  # sr, for small caps
+    held = np.arange(1, _DENSITY_NEIGHBOURS + 1) - 0.5
+    with np.errstate(invalid="ignore", divide="ignore"):  # returns in one direction (duplicates): no cap
+        per_sr = (caps * held).sum(axis=1) / (caps * caps).sum(axis=1)
+    return float(np.nanmedian(per_sr) * np.radians(1.0) ** 2) if np.isfinite(per_sr).any() else float("nan")

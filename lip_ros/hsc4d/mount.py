@@ -39,6 +39,7 @@ from lip_ros.core.body import TORSO_PARTS, BodyModel, capsule_distances, first_h
 from lip_ros.core.frames import UP_M, hip_lidar_rotation
 from lip_ros.core.ground_plane import fit_ground_plane
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from lip_ros.core.scan_layout import returns_per_square_degree
 from lip_ros.core.skeleton import calibration_pose, load_skeleton
 
 #: returns nearer a hip LiDAR than this are the wearer's own (an arm swung out: the rig's wearer returns up to 0.7 m
@@ -239,14 +240,16 @@ class SideCheckConfig:
     #                                                                 x 3 positions: a real mounting is off by some)
     erode: float = 0.5  # the body's capsules at this share of their radii (the wearer's girth and shape unknown)
     margin_m: float = 0.1  # a return this far beyond the body's surface along its ray says the body is not there
-    min_seen_through: int = 30  # a sweep tells a side when the other side's body is seen through by this many
-    #                             returns (of a 1024 x 64 sweep's 40 000 or so) ...
+    min_seen_through_deg2: float = 7.5  # a sweep tells a side when the other side's body is seen through by the
+    #                                      returns of this much of the view (square degrees: about 30 of the rig's
+    #                                      OS1-64 at 1024 columns, 3.9 a square degree; the sweep's own density
+    #                                      counts, core.scan_layout.returns_per_square_degree) ...
     max_share: float = 0.25  # ... and this side's by at most this share of them
     sweeps: int = 3  # the first sweeps read (the wearer standing at the start); each must tell the same side
 
     def __post_init__(self) -> None:
         if not (min(self.lever_spread_m) >= 0.0 and 0.0 < self.erode <= 1.0 and self.margin_m > 0.0
-                and self.min_seen_through >= 1 and 0.0 <= self.max_share < 1.0 and self.sweeps >= 1):
+                and self.min_seen_through_deg2 > 0.0 and 0.0 <= self.max_share < 1.0 and self.sweeps >= 1):
             raise ValueError(f"invalid {self}")
 
 
@@ -263,18 +266,19 @@ def _standing_body(girth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 class SideCheck:
     """Which hip the sensor is worn on, against the nominal lever arm's side, from the first sweeps of the wearer
-    standing: the wearer's torso and thighs, right beside a hip-worn sensor, block its rays toward the body's
-    middle, so no return lies beyond them. :meth:`check` puts the contract skeleton's torso and thighs (A-pose,
-    thinned to ``erode`` of their girth, the pelvis upright) where the nominal lever arm says and where it says
-    mirrored across the body's middle, each at the lever arm's 27 positions within ``lever_spread_m`` of it
-    keeping the one that fits best, and counts the returns seen through each side's body (more than ``margin_m``
-    beyond it along their rays): a sweep tells the side whose body is seen through by at most ``max_share`` of the
-    other's count, when that is at least ``min_seen_through``. The first ``sweeps`` sweeps must all tell the same
-    side; it is then used: the nominal lever arm mirrored if it is the other (:attr:`lever_m`). Otherwise (the
-    body's place not seen: the near arm hides it, or the sensor's field of view misses it; or the mounting's
-    rotation not confirmed by the ground) the lever arm stays as configured, and :attr:`status` says why. The
-    wearer's own returns do not take part: which of them are the near arm and which the body beyond depends on the
-    arms and on the sensor's minimum range."""
+    standing: the wearer's torso and thighs, right beside a hip-worn sensor, block its rays toward the body's middle,
+    so no return lies beyond them. :meth:`check` puts the contract skeleton's torso and thighs (A-pose, thinned to
+    ``erode`` of their girth, the pelvis upright) where the nominal lever arm says and where it says mirrored across
+    the body's middle, each at the lever arm's 27 positions within ``lever_spread_m`` of it keeping the one that fits
+    best, and counts the returns seen through each side's body (more than ``margin_m`` beyond it along their rays): a
+    sweep tells the side whose body is seen through by at most ``max_share`` of the other's count, when that covers
+    at least ``min_seen_through_deg2`` of the view (the sweep's returns per square degree from its points: a sensor
+    of fewer beams or columns sees fewer through the same body). The first ``sweeps`` sweeps must all tell the same
+    side; it is then used: the nominal lever arm mirrored if it is the other (:attr:`lever_m`). Otherwise (the body's
+    place not seen: the near arm hides it, or the sensor's field of view misses it; or the mounting's rotation not
+    confirmed by the ground) the lever arm stays as configured, and :attr:`status` says why. The wearer's own returns
+    do not take part: which of them are the near arm and which the body beyond depends on the arms and on the
+    sensor's minimum range."""
 
     def __init__(self, mount: HipMountPrior, config: SideCheckConfig | None = None) -> None:
         self.mount = mount
@@ -331,10 +335,14 @@ class SideCheck:
         """Which hip one sweep (points (N, 3) in L) puts the sensor on, with the sensor frame L in the pelvis frame
         as ``R_M_L`` (3, 3): +1 the right, -1 the left, None if it does not tell."""
         c = self.config
+        density = returns_per_square_degree(points)
+        if not density > 0.0:  # too few returns to tell how densely they sample
+            return None
+        least = max(c.min_seen_through_deg2 * density, 1.0)
         right, left = self.seen_through(points, R_M_L)
-        if left >= c.min_seen_through and right <= c.max_share * left:
+        if left >= least and right <= c.max_share * left:
             return 1
-        if right >= c.min_seen_through and left <= c.max_share * right:
+        if right >= least and left <= c.max_share * right:
             return -1
         return None
 

@@ -83,15 +83,15 @@ def test_the_spin_stays_as_configured_when_the_ground_does_not_tell():
 
 
 def _standing_sweep(mount: HipMountPrior, lever_m: tuple[float, float, float] | None = None, scene: str = "room",
-                    min_range_m: float = 0.5) -> np.ndarray:
-    """Points (N, 3) in L of one sweep (64 x 512 beams over +-16.6 deg, an OS1-64's) of a sensor mounted as ``mount``
-    (at ``lever_m`` if given) on the contract skeleton's body standing in its A-pose, arms and all, in ``scene``:
-    "room" (flat ground, a wall all round 4 m away), "field" (the ground only) or "sky" (nothing beyond the body),
-    returns nearer than ``min_range_m`` lost."""
+                    min_range_m: float = 0.5, beams: int = 64, columns: int = 512) -> np.ndarray:
+    """Points (N, 3) in L of one sweep (``beams`` x ``columns`` over +-16.6 deg, an OS1-64's view) of a sensor
+    mounted as ``mount`` (at ``lever_m`` if given) on the contract skeleton's body standing in its A-pose, arms and
+    all, in ``scene``: "room" (flat ground, a wall all round 4 m away), "field" (the ground only) or "sky" (nothing
+    beyond the body), returns nearer than ``min_range_m`` lost."""
     skeleton = load_skeleton()
     glob, joints = calibration_pose(skeleton, "a_pose")
-    elevation, azimuth = np.meshgrid(np.radians(np.linspace(-16.6, 16.6, 64)), np.linspace(-np.pi, np.pi, 512,
-                                                                                          endpoint=False))
+    elevation, azimuth = np.meshgrid(np.radians(np.linspace(-16.6, 16.6, beams)),
+                                     np.linspace(-np.pi, np.pi, columns, endpoint=False))
     dirs_L = np.column_stack([(np.cos(elevation) * np.cos(azimuth)).ravel(),
                               (np.cos(elevation) * np.sin(azimuth)).ravel(), np.sin(elevation).ravel()])
     origin = np.array(mount.lever_m if lever_m is None else lever_m)
@@ -109,21 +109,25 @@ def _standing_sweep(mount: HipMountPrior, lever_m: tuple[float, float, float] | 
     return dirs_L[seen] * ranges[seen, None]
 
 
-@pytest.mark.parametrize(("worn", "spin_deg", "lever_m", "min_range_m"), [
-    ("right", 0.0, None, 0.5), ("left", 0.0, (0.15, 0.0, -0.1), 0.5), ("left", 180.0, (0.15, 0.0, -0.1), 0.5),
-    ("left", 0.0, (0.2, 0.04, -0.02), 0.5),  # a lever arm off the nominal by 5-8 cm
-    ("right", 0.0, (-0.11, -0.05, -0.18), 0.5),
-    ("right", 0.0, None, 0.1), ("left", 0.0, (0.15, 0.0, -0.1), 0.1),  # the near arm and the body seen
+@pytest.mark.parametrize(("worn", "spin_deg", "lever_m", "min_range_m", "beams", "columns"), [
+    ("right", 0.0, None, 0.5, 64, 512), ("left", 0.0, (0.15, 0.0, -0.1), 0.5, 64, 512),
+    ("left", 180.0, (0.15, 0.0, -0.1), 0.5, 64, 512),
+    ("left", 0.0, (0.2, 0.04, -0.02), 0.5, 64, 512),  # a lever arm off the nominal by 5-8 cm
+    ("right", 0.0, (-0.11, -0.05, -0.18), 0.5, 64, 512),
+    ("right", 0.0, None, 0.1, 64, 512), ("left", 0.0, (0.15, 0.0, -0.1), 0.1, 64, 512),  # the near arm seen
+    ("left", 0.0, (0.15, 0.0, -0.1), 0.5, 16, 256), ("right", 0.0, None, 0.5, 128, 512),  # sparser, denser
 ])
-def test_the_hip_the_sensor_is_worn_on_is_read_from_the_wearers_body(worn, spin_deg, lever_m, min_range_m):
+def test_the_hip_the_sensor_is_worn_on_is_read_from_the_wearers_body(worn, spin_deg, lever_m, min_range_m, beams,
+                                                                      columns):
     """The wearer's torso and thighs block a hip-worn sensor's rays toward the body's middle: no return lies beyond
     them on the hip it is worn on, while the ground is seen where they would stand on the other. Read through the
     mounting's rotation (spun or not), with the lever arm off the nominal by a few centimetres, with the wearer's own
     returns from 0.1 m (its near arm among them: they take no part), three sweeps decide:
     on the nominal hip the lever arm stays; on the other it is mirrored across the body's middle, and the status
-    says to set ``mount_lever_m``. Non-finite and zero points are left out."""
+    says to set ``mount_lever_m``. Non-finite and zero points are left out. A sensor of 16 beams at 256 columns
+    (an eighth of the returns) or 128 at 512 (twice as many) tells it too."""
     mount = HipMountPrior(spin_deg=spin_deg)
-    sweep = _standing_sweep(mount, lever_m, min_range_m=min_range_m)
+    sweep = _standing_sweep(mount, lever_m, min_range_m=min_range_m, beams=beams, columns=columns)
     right, left = SideCheck(mount).seen_through(sweep, mount.R_M_L)
     if worn == "right":
         assert right == 0 and left > 100
@@ -164,14 +168,23 @@ def test_a_mounting_tilted_otherwise_than_the_nominal_is_levelled_before_the_hip
 
 
 def test_a_sweep_tells_a_side_only_when_the_other_sides_body_is_seen_through_and_its_own_hardly():
-    """The rule of :meth:`SideCheck.reading` on the counts of returns seen through each side's body: at least
-    ``min_seen_through`` on the other side, at most ``max_share`` of that on this side."""
+    """The rule of :meth:`SideCheck.reading` on the counts of returns seen through each side's body: at least the
+    returns of ``min_seen_through_deg2`` of the view on the other side (as densely as the sweep's returns sample
+    it), at most ``max_share`` of that on this side; nothing from a sweep too sparse to tell its density."""
     check, c = SideCheck(HipMountPrior()), SideCheckConfig()
-    cases = {(0, c.min_seen_through): 1, (c.min_seen_through, 0): -1, (0, c.min_seen_through - 1): None,
-             (10, 40): 1, (11, 40): None, (40, 10): -1, (40, 11): None, (0, 0): None}
-    for counts, told in cases.items():
-        check.seen_through = lambda points, R_M_L, counts=counts: counts
-        assert check.reading(np.zeros((1, 3)), np.eye(3)) == told, counts
+    for per_deg2 in (1, 3):  # a 1 x 1 deg grid over +-15 deg, and 3 times as many columns
+        el, az = np.meshgrid(np.radians(np.arange(-15.0, 15.5, 1.0)), np.radians(np.arange(0.0, 360.0, 1.0 / per_deg2)))
+        sweep = 5.0 * np.column_stack([(np.cos(el) * np.cos(az)).ravel(), (np.cos(el) * np.sin(az)).ravel(),
+                                       np.sin(el).ravel()])
+        least = c.min_seen_through_deg2 * per_deg2
+        cases = {(0, least * 1.05): 1, (least * 1.05, 0): -1, (0, least * 0.95): None,
+                 (10 * per_deg2, 40 * per_deg2): 1, (11 * per_deg2, 40 * per_deg2): None,
+                 (40 * per_deg2, 10 * per_deg2): -1, (40 * per_deg2, 11 * per_deg2): None, (0, 0): None}
+        for counts, told in cases.items():
+            check.seen_through = lambda points, R_M_L, counts=counts: counts
+            assert check.reading(sweep, np.eye(3)) == told, (per_deg2, counts)
+    check.seen_through = lambda points, R_M_L: (0, 1000)
+    assert check.reading(sweep[:50], np.eye(3)) is None
 
 
 def test_the_hip_stays_as_configured_when_the_wearers_body_does_not_tell():
