@@ -49,6 +49,8 @@ class SiteCaptureConfig:
     seconds: float = 90.0
     columns: int = 1024
     rate_hz: float = 10.0
+    # the hip LiDAR's beams over the OS1's 45 deg: the contract's OS1-64, or a variant (an OS1-16, -32 or -128)
+    beams: int = 64
     imu_noise: bool = True
     odometry: SuitOdometryConfig = field(default_factory=SuitOdometryConfig)
     # the LiDAR's tilt up on the hip before the seed's perturbation (+-5 deg): a variant away from the nominal 30 deg
@@ -63,14 +65,19 @@ class SiteCaptureConfig:
     # the rate of the suit's IMUs and of its odometry (``odometry.rate_hz`` is overridden): the contract's 100 Hz,
     # or a variant (the method is told 100 Hz unless its ``suit_rate_hz`` is set)
     suit_rate_hz: float = SUIT_RATE_HZ
+    # the wearer's size, times the contract skeleton (None: the seed's, 0.9-1.1): a variant for a wearer smaller or
+    # taller than the rig draws (the method scales the contract's skeleton to the standing pelvis height)
+    body_scale: float | None = None
     # the suit's IMU errors (noise, biases, tilt and heading errors) this many times the DOT-like ones
     # (ImuNoise.suit(): tilt error 0.5 deg, bias 0.02 m/s^2): a variant for a suit worse than the rig's
     suit_noise_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if (self.columns not in (512, 1024, 2048) or self.rate_hz not in (10.0, 20.0) or self.seconds <= 0
+                or self.beams not in (16, 32, 64, 128)
                 or not 0.0 <= self.mount_tilt_up_deg <= 60.0 or not -180.0 <= self.mount_spin_deg <= 180.0
                 or not 20.0 <= self.suit_rate_hz <= 1000.0 or self.suit_noise_scale < 0.0
+                or (self.body_scale is not None and not 0.5 <= self.body_scale <= 1.5)
                 or (self.mount_lever_m is not None and (len(self.mount_lever_m) != 3
                                                         or not np.isfinite(self.mount_lever_m).all()))):
             raise ValueError(f"invalid {self}")
@@ -113,12 +120,13 @@ class SiteCapture:
     def __post_init__(self) -> None:
         cfg = self.config
         self.terrain = Terrain.random(cfg.seed)
-        self.motion = make_site_motion(self.terrain, cfg.seconds, cfg.seed)
+        self.motion = make_site_motion(self.terrain, cfg.seconds, cfg.seed, body_scale=cfg.body_scale)
         rng = np.random.default_rng([cfg.seed, 300])
         self.body = BodyModel(self.motion.skeleton, girth=float(rng.uniform(0.9, 1.15)))
         lever = {} if cfg.mount_lever_m is None else {"lever_m": np.array(cfg.mount_lever_m, dtype=np.float64)}
         self.mount = HipMount(tilt_up_deg=cfg.mount_tilt_up_deg, spin_deg=cfg.mount_spin_deg, **lever).perturbed(rng)
-        self.lidar = OusterModel.os1_64(columns=cfg.columns, rate_hz=cfg.rate_hz, column0_azimuth_deg=0.0)
+        self.lidar = OusterModel(beams=cfg.beams, columns=cfg.columns, rate_hz=cfg.rate_hz,
+                                 column0_azimuth_deg=0.0)  # an OS1-64 unless a variant's beams
         self.suit = make_imu_truth(self.motion.skeleton, ImuRigConfig.suit(self.motion.skeleton, cfg.suit_rate_hz),
                                    np.random.default_rng([cfg.seed, 301]))
         self._caster: MeshRaycaster | None = None
