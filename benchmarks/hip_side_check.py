@@ -41,12 +41,11 @@ import numpy as np
 
 from lip_ros.core.body import BodyModel
 from lip_ros.hsc4d.mount import HipMountPrior, SideCheck, SpinCheck
-from lip_ros.rig.motion import make_site_motion
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 
 LEFT = (0.15, 0.0, -0.1)  # the nominal lever arm mirrored
-#: name: (SiteCaptureConfig fields, OusterModel fields (the rig's OS1-64: 64 beams, minimum range 0.5 m), the wearer's
-#: girth (None: the seed's), the true lever arms (None: the nominal's, on the right hip))
+#: name: (SiteCaptureConfig fields, OusterModel fields (the rig's minimum range 0.5 m), the wearer's girth (None: the
+#: seed's), the true lever arms (None: the nominal's, on the right hip))
 VARIANTS: dict[str, tuple[dict, dict, float | None, tuple]] = {
     "base": ({}, {}, None, (None, LEFT)),
     "mr0.3": ({}, {"min_range": 0.3}, None, (None, LEFT)),
@@ -59,15 +58,15 @@ VARIANTS: dict[str, tuple[dict, dict, float | None, tuple]] = {
     "level180": ({"mount_tilt_up_deg": 3.0, "mount_spin_deg": 180.0}, {}, None, (None, LEFT)),
     "2048": ({"columns": 2048}, {}, None, (None, LEFT)),
     "512": ({"columns": 512}, {}, None, (None, LEFT)),
-    "32beams": ({}, {"beams": 32}, None, (None, LEFT)),
-    "16beams": ({}, {"beams": 16}, None, (None, LEFT)),
-    "128beams": ({}, {"beams": 128}, None, (None, LEFT)),
-    "32x512": ({"columns": 512}, {"beams": 32}, None, (None, LEFT)),
+    "32beams": ({"beams": 32}, {}, None, (None, LEFT)),
+    "16beams": ({"beams": 16}, {}, None, (None, LEFT)),
+    "128beams": ({"beams": 128}, {}, None, (None, LEFT)),
+    "32x512": ({"columns": 512, "beams": 32}, {}, None, (None, LEFT)),
     "20hz": ({"rate_hz": 20.0}, {}, None, (None, LEFT)),
     "girth0.8": ({}, {}, 0.8, (None, LEFT)),
     "girth1.35": ({}, {}, 1.35, (None, LEFT)),
-    "scale0.8": ({}, {}, None, (None, LEFT)),
-    "scale1.2": ({}, {}, None, (None, LEFT)),
+    "scale0.8": ({"body_scale": 0.8}, {}, None, (None, LEFT)),
+    "scale1.2": ({"body_scale": 1.2}, {}, None, (None, LEFT)),
     "lever": ({}, {}, None, ((-0.19, 0.03, -0.03), (0.19, 0.03, -0.03), (-0.12, -0.04, -0.17), (0.12, -0.04, -0.17),
                              (-0.21, -0.02, -0.22), (0.21, -0.02, -0.22))),
 }
@@ -105,10 +104,6 @@ def main(argv: list[str] | None = None) -> int:
                                            **({} if lever is None else {"mount_lever_m": lever}))
                 capture = SiteCapture(config)
                 capture.lidar = dataclasses.replace(capture.lidar, **lidar)
-                if name.startswith("scale"):  # the same walk by a wearer of another size (the rig's: 0.9-1.1)
-                    capture.motion = make_site_motion(capture.terrain, args.seconds, seed,
-                                                      body_scale=float(name[len("scale"):]))
-                    capture.body = BodyModel(capture.motion.skeleton, girth=capture.body.girth)
                 if girth is not None:
                     capture.body = BodyModel(capture.motion.skeleton, girth=girth)
                 true = "left" if lever is not None and lever[0] > 0.0 else "right"

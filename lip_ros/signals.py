@@ -23,7 +23,8 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 _lock = threading.Lock()
 _current: threading.Event | None = None  # what the next stop signal sets
-_watching = False  # the pipe and its reader are set up (once per process)
+_pipe: tuple[int, int] | None = None  # (read, write): the signals' numbers, written by the C-level handler
+_reader: threading.Thread | None = None
 
 
 def _note(signum: int, frame: object) -> None:
@@ -31,7 +32,7 @@ def _note(signum: int, frame: object) -> None:
 
 
 def _read_signals(read_fd: int) -> None:
-    """The watcher thread: set the current event for every stop signal written to the pipe."""
+    """The reader thread: set the current event for every stop signal written to the pipe."""
     stops = {int(s) for s in STOP_SIGNALS}
     while chunk := os.read(read_fd, 64):
         if stops & set(chunk):
@@ -41,19 +42,31 @@ def _read_signals(read_fd: int) -> None:
                 event.set()
 
 
+def _forget_pipe_in_child() -> None:
+    """After a fork: the child's signals must not reach its parent's pipe (and its parent's stop event)."""
+    try:
+        signal.set_wakeup_fd(-1)
+    except ValueError:  # forked from a thread other than the main one: the wakeup fd is the main thread's to set
+        pass
+
+
 def stop_on_signals() -> threading.Event:
     """An event that SIGINT and SIGTERM set from now on (instead of interrupting whatever runs: a callback, a bag
-    write); an event this returned earlier is no longer set by them. Call it from the main thread."""
-    global _current, _watching
+    write); an event this returned earlier is no longer set by them. Only from the main thread (ValueError)."""
+    global _current, _pipe, _reader
+    if threading.current_thread() is not threading.main_thread():
+        raise ValueError("stop_on_signals() must be called from the main thread")
     stop = threading.Event()
     with _lock:
+        if _pipe is None:
+            _pipe = os.pipe()  # not inherited by exec'd children (PEP 446)
+            os.set_blocking(_pipe[1], False)  # the C-level handler must never block
+            os.register_at_fork(after_in_child=_forget_pipe_in_child)
+        if _reader is None or not _reader.is_alive():
+            _reader = threading.Thread(target=_read_signals, args=(_pipe[0],), name="stop signals", daemon=True)
+            _reader.start()
         _current = stop
-        if not _watching:
-            read_fd, write_fd = os.pipe()
-            os.set_blocking(write_fd, False)  # the C handler must never block
-            signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
-            threading.Thread(target=_read_signals, args=(read_fd,), name="stop signals", daemon=True).start()
-            _watching = True
+    signal.set_wakeup_fd(_pipe[1], warn_on_full_buffer=False)  # again each time: other code may have set its own
     for sig in STOP_SIGNALS:
         signal.signal(sig, _note)
     return stop

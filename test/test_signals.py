@@ -29,3 +29,31 @@ def test_a_signal_handled_inside_the_stop_events_lock_sets_it(name: str):
     killed under load hung so (2 of 8 in a loop). An event returned earlier is not set any more."""
     done = subprocess.run([sys.executable, "-c", _SIGNALLED, name], capture_output=True, text=True, timeout=15)
     assert (done.returncode, done.stdout.split()) == (0, ["True", "False"]), done.stderr
+
+
+_ELSEWHERE = textwrap.dedent("""
+    import os, signal, threading
+    from lip_ros.signals import stop_on_signals
+
+    refused = []
+    def from_a_thread():
+        try:
+            stop_on_signals()
+        except ValueError:
+            refused.append(True)
+    thread = threading.Thread(target=from_a_thread)
+    thread.start()
+    thread.join()
+    stop = stop_on_signals()
+    child = os.fork()
+    if child == 0:  # a forked child's signal is its own, not its parent's stop
+        os.kill(os.getpid(), signal.SIGTERM)
+        os._exit(0)
+    os.waitpid(child, 0)
+    print(bool(refused), stop.wait(0.5), flush=True)
+""")
+
+
+def test_only_the_main_thread_sets_it_up_and_a_forked_childs_signal_is_the_childs():
+    done = subprocess.run([sys.executable, "-c", _ELSEWHERE], capture_output=True, text=True, timeout=15)
+    assert (done.returncode, done.stdout.split()) == (0, ["True", "False"]), done.stderr

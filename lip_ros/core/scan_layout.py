@@ -159,9 +159,9 @@ def returns_per_square_degree(points: np.ndarray) -> float:
     Round each of up to 2000 returns (evenly subsampled), the k-th nearest direction of the next 64 (chord on the
     unit sphere) bounds a cap holding k - 1/2 of them on average; the density that fits the 64 caps (least
     squares), median over the returns. Grids of 16-128 beams by 512-2048 columns over 45 deg are read within 5 %
-    (half of them without returns, as under the sky, too), but 16 by 2048 (rows 16 times as far apart as columns)
-    15 % low; the rig's OS1 sweeps within 6 %. The k-th nearest alone was up to 35 % off where rows and columns
-    are unequally far apart (test/core/test_scan_layout.py).
+    (most of the upper half without returns, as under the sky, too), but 16 by 2048 (rows 16 times as far apart
+    as columns) 15 % low (test/core/test_scan_layout.py); the rig's OS1 sweeps within 6 %, where the k-th nearest
+    alone was up to 35 % off (session 48, scratch).
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     ranges = np.linalg.norm(points, axis=1)
@@ -171,7 +171,7 @@ def returns_per_square_degree(points: np.ndarray) -> float:
     dirs = points[keep] / ranges[keep, None]
     queries = dirs[np.linspace(0, len(dirs) - 1, min(_DENSITY_SAMPLES, len(dirs))).astype(int)]
     chord, _ = cKDTree(dirs).query(queries, _DENSITY_NEIGHBOURS + 1)  # the first is the return itself
-    caps = np.pi * chord[:, 1:] ** 2  # sr, for small caps
+    caps = np.pi * chord[:, 1:] ** 2  # sr: 2 pi (1 - cos) of the cap's angle, exactly
     held = np.arange(1, _DENSITY_NEIGHBOURS + 1) - 0.5
     with np.errstate(invalid="ignore", divide="ignore"):  # returns in one direction (duplicates): no cap
         per_sr = (caps * held).sum(axis=1) / (caps * caps).sum(axis=1)

@@ -25,11 +25,12 @@ Writes DIR/metrics.json and DIR/trajectories.png (per capture: top view and
 height over time, the five trajectories against the truth). A capture the
 live pipeline does not pose sweep by sweep (the jump not synced, ...) is
 reported as lost and left out of the means; the exit status is then 1.
-Rig variants (as ``lip_rig site-bag`` takes them, ``lip_ros.tools.site_variants``): ``--mount-tilt-up DEG``
-(the hip LiDAR's true tilt), ``--mount-spin DEG`` (turned about its own axis), ``--mount-lever X Y Z`` (its
-lever arm: the other hip), ``--suit-rate HZ`` (the suit's rate), ``--suit-noise-scale X`` (the suit's IMU errors X
-times the rig's); ``--no-check-mount`` turns the method's checks of the mounting at the start off (its spin and
-its hip), ``--no-check-hip`` only that of the hip.
+Rig variants (as ``lip_rig site-bag`` takes them, ``lip_ros.tools.site_variants``): ``--beams N`` (the hip LiDAR's
+beams), ``--mount-tilt-up DEG`` (its true tilt), ``--mount-spin DEG`` (turned about its own axis),
+``--mount-lever X Y Z`` (its lever arm: the other hip), ``--body-scale X`` (the wearer's size), ``--suit-rate HZ``
+(the suit's rate), ``--suit-noise-scale X`` (the suit's IMU errors X times the rig's); ``--no-check-mount`` turns
+the method's checks of the mounting at the start off (its spin and its hip), ``--no-check-hip`` only that of the
+hip.
 Held-out seeds: 1000 and up (development used 0-20).
 """
 

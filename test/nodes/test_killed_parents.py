@@ -50,7 +50,8 @@ def _kill_and_wait(parent: subprocess.Popen, children: list[int], timeout_s: flo
 def test_a_killed_hsc4d_graph_takes_its_body_node_along(ros_node, tmp_path: Path):
     """Killed once the body node is ready (its name is on the graph before its start-up is done, and a body node
     told to stop during its start-up ends only once that is done). It outlived the 15 s allowed here twice under a
-    whole suite's load: its signal handler waited for ever on the stop event's lock (``test/test_signals.py``)."""
+    whole suite's load: in stop 50's CI its signal handler waited for ever on the stop event's lock, as a loop of
+    this test under load showed (``test/test_signals.py``); session 42's was likely the same."""
     log = tmp_path / "graph.log"
     with log.open("w") as stderr:
         graph = subprocess.Popen([console_script("fusion_node"), "--ros-args", "-p", "branch:=hsc4d"],

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
 import pytest
 
+from lip_ros.core.skeleton import load_skeleton
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 from lip_ros.tools.site_variants import add_site_arguments, site_capture_config
 
@@ -22,20 +24,25 @@ def test_no_options_are_the_rigs_own_capture_and_each_option_sets_its_variant():
     options and seed are the same capture."""
     assert site_capture_config(_parse([]), 3) == SiteCaptureConfig(seed=3)
     args = _parse(["--seconds", "20", "--columns", "512", "--rate", "20", "--beams", "32", "--mount-tilt-up", "15",
-                   "--mount-spin",
-                   "180", "--mount-lever", "0.15", "0", "-0.1", "--suit-rate", "240", "--suit-noise-scale", "4",
-                   "--body-scale", "1.2"])
+                   "--mount-spin", "180", "--mount-lever", "0.15", "0", "-0.1", "--suit-rate", "240",
+                   "--suit-noise-scale", "4", "--body-scale", "1.2"])
     assert site_capture_config(args, 1000) == SiteCaptureConfig(
         seed=1000, seconds=20.0, columns=512, rate_hz=20.0, beams=32, mount_tilt_up_deg=15.0, mount_spin_deg=180.0,
         mount_lever_m=(0.15, 0.0, -0.1), suit_rate_hz=240.0, suit_noise_scale=4.0, body_scale=1.2)
 
 
-def test_the_beams_variant_is_the_hip_lidars():
+def test_the_beams_and_size_variants_are_the_hip_lidars_and_the_wearers():
     """``beams`` gives the capture's LiDAR that many beams over the same field of view (an OS1-16 / -32 / -128 for
-    the contract's OS1-64); other counts are refused."""
-    capture = SiteCapture(SiteCaptureConfig(seed=0, seconds=14.0, columns=512, beams=32))
+    the contract's OS1-64); ``body_scale`` the wearer that size of the contract skeleton, in the motion and the body
+    the rays meet; other counts and sizes are refused."""
+    capture = SiteCapture(SiteCaptureConfig(seed=0, seconds=14.0, columns=512, beams=32, body_scale=1.2))
     own = SiteCapture(SiteCaptureConfig(seed=0, seconds=14.0, columns=512))
     assert (capture.lidar.beams, own.lidar.beams) == (32, 64)
     assert capture.lidar.vertical_fov_deg == own.lidar.vertical_fov_deg
-    with pytest.raises(ValueError):
-        SiteCaptureConfig(beams=48)
+    contract = load_skeleton().offsets
+    assert np.allclose(capture.motion.skeleton.offsets, 1.2 * contract)
+    assert capture.body.skeleton is capture.motion.skeleton
+    assert not np.allclose(own.motion.skeleton.offsets, 1.2 * contract)  # the seed's own: 0.9-1.1
+    for bad in ({"beams": 48}, {"body_scale": 1.6}, {"body_scale": 0.4}):
+        with pytest.raises(ValueError):
+            SiteCaptureConfig(**bad)
