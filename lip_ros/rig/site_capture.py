@@ -33,7 +33,7 @@ from lip_ros.rig.suit_odometry import (
     foot_contacts,
     simulate_suit_odometry,
 )
-from lip_ros.rig.terrain import Terrain
+from lip_ros.rig.terrain import SCENES, Terrain
 
 __all__ = ["SiteCaptureConfig", "SiteTruth", "SiteCapture", "TRUTH_RATE_HZ"]
 
@@ -71,10 +71,13 @@ class SiteCaptureConfig:
     # the suit's IMU errors (noise, biases, tilt and heading errors) this many times the DOT-like ones
     # (ImuNoise.suit(): tilt error 0.5 deg, bias 0.02 m/s^2): a variant for a suit worse than the rig's
     suit_noise_scale: float = 1.0
+    # what the site holds besides the ground and the walk's terrace, stairs and ramp (terrain.SCENES): the rig's own
+    # "site", or a variant with less for the LiDAR to register on ("sparse": the facades only; "open": nothing)
+    scene: str = "site"
 
     def __post_init__(self) -> None:
         if (self.columns not in (512, 1024, 2048) or self.rate_hz not in (10.0, 20.0) or self.seconds <= 0
-                or self.beams not in (16, 32, 64, 128)
+                or self.beams not in (16, 32, 64, 128) or self.scene not in SCENES
                 or not 0.0 <= self.mount_tilt_up_deg <= 60.0 or not -180.0 <= self.mount_spin_deg <= 180.0
                 or not 20.0 <= self.suit_rate_hz <= 1000.0 or self.suit_noise_scale < 0.0
                 or (self.body_scale is not None and not 0.5 <= self.body_scale <= 1.5)
@@ -119,7 +122,7 @@ class SiteCapture:
 
     def __post_init__(self) -> None:
         cfg = self.config
-        self.terrain = Terrain.random(cfg.seed)
+        self.terrain = Terrain.random(cfg.seed, cfg.scene)
         self.motion = make_site_motion(self.terrain, cfg.seconds, cfg.seed, body_scale=cfg.body_scale)
         rng = np.random.default_rng([cfg.seed, 300])
         self.body = BodyModel(self.motion.skeleton, girth=float(rng.uniform(0.9, 1.15)))

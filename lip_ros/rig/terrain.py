@@ -24,10 +24,15 @@ import numpy as np
 
 from lip_ros.core.rotations import rot_y, rot_z
 
-__all__ = ["Blocks", "Terrain", "SITE_HALF_M", "ROUTE_RADIUS_M"]
+__all__ = ["Blocks", "Terrain", "SITE_HALF_M", "ROUTE_RADIUS_M", "SCENES"]
 
 #: Half the extent of a random site along x and y (metres): 60 x 40 m.
 SITE_HALF_M = (30.0, 20.0)
+#: What a site holds besides the ground, the terrace, its stair flight and its ramp (the walk's route): "site" all of
+#: the module docstring's; rig variants with less for the LiDAR odometry to register on: "sparse" only the facades
+#: along the edges and the terrace's kiosk and lamp posts (no room, free walls, pillars or crates), "open" nothing else
+#: (a field with a stand).
+SCENES = ("site", "sparse", "open")
 #: The highest a terrace can be (16 risers of 18 cm).
 _TERRACE_MAX_M = 16 * 0.18
 #: A ramp runs at most this far (m): steeper than drawn if the terrace is high (room for the route round it).
@@ -127,8 +132,11 @@ class Terrain:
         return np.where(inside.any(axis=0), highest, np.nan)
 
     @classmethod
-    def random(cls, seed: int) -> Terrain:
-        """A site of 60 x 40 m drawn from ``seed`` (module docstring)."""
+    def random(cls, seed: int, scene: str = "site") -> Terrain:
+        """A site of 60 x 40 m drawn from ``seed`` (module docstring), holding what ``scene`` says (:data:`SCENES`;
+        the same seed draws the same stairs, ramp and terrace, and the same objects of those it holds)."""
+        if scene not in SCENES:
+            raise ValueError(f"unknown scene {scene!r}: one of {SCENES}")
         rng = np.random.default_rng(seed)
         sx, sy = SITE_HALF_M
         parts = [Blocks.axis_aligned([-sx, -sy, -_GROUND_DEPTH_M], [sx, sy, 0.0], walkable=True)]
@@ -157,13 +165,14 @@ class Terrain:
         normal = np.array([-np.sin(pitch), 0.0, np.cos(pitch)])
         parts.append(Blocks(np.array([mid_top - thick * normal]), np.array([[0.5 * length, 0.5 * ramp_width, thick]]),
                             np.zeros(1), np.array([pitch]), np.ones(1, dtype=bool)))
-        parts.append(_room(rng, x=float(rng.uniform(-26.0, -14.0)), y=float(rng.uniform(6.0, 10.0))))
-        parts.append(_walls_with_openings(rng))
-        parts.append(_clutter(rng))
-        parts.append(_surroundings(rng, terrace_x, terrace_y[1]))
+        # every object drawn whatever the scene holds, so that a seed's are the same in each
+        inner = [_room(rng, x=float(rng.uniform(-26.0, -14.0)), y=float(rng.uniform(6.0, 10.0))),
+                 _walls_with_openings(rng), _clutter(rng)]
+        edges = _surroundings(rng, terrace_x, terrace_y[1])
+        parts += {"site": [*inner, edges], "sparse": [edges], "open": []}[scene]
         layout = {"risers": risers, "riser_m": riser, "tread_m": tread, "terrace_height_m": height,
                   "terrace_x_m": terrace_x, "terrace_y_m": terrace_y, "stair_y_m": (stair_y, stair_y + stair_width),
-                  "ramp_deg": ramp_deg, "ramp_y_m": (ramp_y, ramp_y + ramp_width), "ramp_run_m": run}
+                  "ramp_deg": ramp_deg, "ramp_y_m": (ramp_y, ramp_y + ramp_width), "ramp_run_m": run, "scene": scene}
         return cls(Blocks.concatenate(parts), layout)
 
 

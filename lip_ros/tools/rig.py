@@ -19,6 +19,7 @@ from lip_ros.rig.capture import SENSORS, CaptureConfig, CaptureSession
 from lip_ros.rig.faults import FAULT_KINDS, ONE_IMU_FAULTS, FaultSpec, write_faulty_bag
 from lip_ros.rig.motion import SCENARIOS
 from lip_ros.rig.site_capture import SiteCaptureConfig
+from lip_ros.rig.terrain import SCENES
 from lip_ros.tools.site_variants import add_site_arguments, site_capture_config
 
 
@@ -61,7 +62,7 @@ def _site(args: argparse.Namespace) -> int:
     from lip_ros.rig.inspect import plot_terrain
     from lip_ros.rig.terrain import SITE_HALF_M, Terrain
 
-    terrain = Terrain.random(args.seed)
+    terrain = Terrain.random(args.seed, args.scene)
     print(f"site {2 * SITE_HALF_M[0]:g} x {2 * SITE_HALF_M[1]:g} m, {len(terrain.blocks)} blocks: "
           + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in terrain.layout.items()
                       if not isinstance(v, tuple)))
@@ -153,6 +154,8 @@ def parser() -> argparse.ArgumentParser:
     t = sub.add_parser("site", help="a scene with height of the HSC4D rig, drawn from a seed (and its plot)")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--walk", type=float, metavar="SECONDS", help="also a performer's capture through it")
+    t.add_argument("--scene", choices=SCENES, default=SiteCaptureConfig.scene,
+                   help="what the site holds besides the walk's terrace, stairs and ramp (all, facades only, nothing)")
     t.add_argument("--plot", type=Path, help="write a PNG here")
     t.set_defaults(func=_site)
     b = sub.add_parser("site-bag", help="simulate an HSC4D capture (hip LiDAR, suit, odometry) as an MCAP bag")

@@ -6,13 +6,14 @@ from __future__ import annotations
 import argparse
 
 from lip_ros.rig.site_capture import SiteCaptureConfig
+from lip_ros.rig.terrain import SCENES
 
 __all__ = ["add_site_arguments", "site_capture_config"]
 
 
 def add_site_arguments(parser: argparse.ArgumentParser) -> None:
     """The capture's length, the LiDAR's columns and rate, and the rig variants (the hip LiDAR's beams and true
-    mounting, the wearer's size, the suit's rate and noise), each defaulting to the rig's own."""
+    mounting, the wearer's size, the suit's rate and noise, the scene), each defaulting to the rig's own."""
     d = SiteCaptureConfig
     parser.add_argument("--seconds", type=float, default=d.seconds, help="capture length")
     parser.add_argument("--columns", type=int, choices=(512, 1024, 2048), default=d.columns)
@@ -36,6 +37,10 @@ def add_site_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--suit-noise-scale", type=float, default=d.suit_noise_scale, metavar="X",
                         help="a rig variant: the suit's IMU errors (noise, biases, tilt and heading errors) X times "
                              "the rig's DOT-like ones")
+    parser.add_argument("--scene", choices=SCENES, default=d.scene,
+                        help="a rig variant: what the site holds besides the ground and the walk's terrace, stairs and "
+                             "ramp: all the rig's own objects (site), the facades along its edges only (sparse), "
+                             "nothing (open)")
 
 
 def site_capture_config(args: argparse.Namespace, seed: int) -> SiteCaptureConfig:
@@ -43,4 +48,5 @@ def site_capture_config(args: argparse.Namespace, seed: int) -> SiteCaptureConfi
     return SiteCaptureConfig(seed=seed, seconds=args.seconds, columns=args.columns, rate_hz=args.rate, beams=args.beams,
                              mount_tilt_up_deg=args.mount_tilt_up, mount_spin_deg=args.mount_spin,
                              mount_lever_m=args.mount_lever and tuple(args.mount_lever), suit_rate_hz=args.suit_rate,
-                             suit_noise_scale=args.suit_noise_scale, body_scale=args.body_scale)
+                             suit_noise_scale=args.suit_noise_scale, body_scale=args.body_scale,
+                             scene=args.scene)

@@ -90,6 +90,30 @@ def test_sites_are_large_deterministic_and_differ_by_seed():
     assert a.layout == b.layout and a.layout != c.layout
 
 
+def test_the_scene_variants_hold_the_walk_and_less_for_the_lidar():
+    """"sparse" and "open" draw the same stairs, ramp and terrace as "site" (the same walk's surface) with fewer
+    obstacles: "sparse" a subset of the site's blocks (the facades and the terrace's kiosk and lamp posts, nothing
+    within the site's edges but those), "open" no obstacle at all; an unknown scene is refused."""
+    site, sparse, field = (Terrain.random(5, scene) for scene in ("site", "sparse", "open"))
+    assert {k: v for k, v in site.layout.items() if k != "scene"} == \
+        {k: v for k, v in field.layout.items() if k != "scene"} == \
+        {k: v for k, v in sparse.layout.items() if k != "scene"}
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(-np.array(SITE_HALF_M), SITE_HALF_M, (5000, 2))
+    np.testing.assert_array_equal(site.surface_height(xy), field.surface_height(xy))
+    np.testing.assert_array_equal(site.surface_height(xy), sparse.surface_height(xy))
+    assert field.blocks.walkable.all() and int(site.blocks.walkable.sum()) == len(field.blocks)
+    kept = {tuple(c) for c in sparse.blocks.centre}
+    assert kept <= {tuple(c) for c in site.blocks.centre}
+    assert len(field.blocks) < len(sparse.blocks) < len(site.blocks)
+    obstacles = sparse.blocks.centre[~sparse.blocks.walkable]
+    inner = np.all(np.abs(obstacles[:, :2]) < np.array(SITE_HALF_M) - 1.0, axis=1)
+    on_terrace = obstacles[:, 0] > sparse.layout["terrace_x_m"]  # the kiosk and lamp posts
+    assert (~inner | on_terrace).all() and inner.any()
+    with pytest.raises(ValueError, match="scene"):
+        Terrain.random(5, "forest")
+
+
 def test_the_raycaster_refuses_what_is_not_triangles():
     with pytest.raises(ValueError, match="triangles"):
         MeshRaycaster(np.zeros((4, 3)))
