@@ -112,6 +112,10 @@ def test_the_scene_variants_hold_the_walk_and_less_for_the_lidar():
     assert (~inner | on_terrace).all() and inner.any()
     with pytest.raises(ValueError, match="scene"):
         Terrain.random(5, "forest")
+    # the rig's own site of a seed as drawn before the variants (the held-out figures rerun the same to the digit)
+    own = Terrain.random(0)
+    assert len(own.blocks) == 66 and own.layout["risers"] == 15
+    assert own.layout["terrace_x_m"] == pytest.approx(9.07, abs=5e-3)
 
 
 def test_the_raycaster_refuses_what_is_not_triangles():
