@@ -16,13 +16,19 @@ Per sweep (:meth:`LidarOdometry.register`):
    registration, here with a fixed threshold) from an initial guess that takes
    the rotation from the IMU when given and the horizontal translation from the
    suit's own odometry when given (``suit``: its relative motion over a sweep
-   is good; it does not know stairs), the vertical from the last velocity
+   is good, its steps scaled by the stride scale the trajectory measured; it
+   does not know stairs), the vertical from the last velocity
    carried on by the IMU's vertical acceleration when given (``vertical``: a
    jump's take-off and landing; after a registration not believed the velocity
    is fitted to the believed registrations of the last ``vertical_window_s``
    with the IMU's own height profile between them, so that the guesses do not
    carry on a climb of their own; while the IMU says the sensor has stood
    still for ``still_window_s`` (``still``), from no vertical velocity); a
+   registration keeps its motion away from the guess only along the motions the
+   sweep's flat surfaces pin down (:func:`pinned_motion`: an open field pins
+   the height and the tilt, not the shifts across it nor the turn about the
+   vertical; a tilt seen at long range is pinned weakly and kept the IMU's,
+   ``pinned_tilt_information``, the rest under ``pinned_information``); a
    registration is not believed (the guess is kept, and the step says why)
    when it moves the guess farther than ``max_correction_m``, or when its
    horizontal motion since the newest believed registration differs from the
@@ -67,11 +73,12 @@ from kiss_icp.voxelization import voxel_down_sample
 
 from lip_ros.core.frames import UP_M
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from lip_ros.core.surface_constraint import registration_constraint
 from lip_ros.hsc4d.mount import WEARER_NEAR_M, HipMountPrior, rotation_between
 from lip_ros.hsc4d.suit_track import SuitTrack
 
 __all__ = ["OdometryConfig", "WearerFilter", "SweepRotation", "VerticalShift", "StillDetector", "OdometryStep",
-           "NOT_REGISTERED", "LidarOdometry", "fitted_vertical_velocity", "KissIcpAlone"]
+           "NOT_REGISTERED", "LidarOdometry", "pinned_motion", "fitted_vertical_velocity", "KissIcpAlone"]
 
 #: ``rotation(t_ns, ref_ns)``: the sensor frame at times ``t_ns`` (N,) in the sensor frame at ``ref_ns``,
 #: R_Lref_L (N, 3, 3); NaN where unknown.
@@ -151,6 +158,21 @@ class OdometryConfig:
     still_window_s: float = 0.3
     still_accel_mps2: float = 0.3
     still_rate_rad_s: float = 0.2
+    # a registration's motion away from the prediction (the IMU's turn, the suit's step) is kept only along the
+    # motions the sweep's flat surfaces pin down (core.surface_constraint: the eigen-directions of the point-to-plane
+    # information per point, a turn scaled by the points' RMS range): along one whose information is under band[0]
+    # the prediction stays, over band[1] the registration, linearly between; (0, 0) keeps the registration as it is.
+    # pinned_tilt_information is the band of a motion that is mostly a tilt (a turn about a horizontal axis; the
+    # IMU's turn over a sweep is good to hundredths of a degree), pinned_information that of the rest (the shifts and
+    # the turn about the vertical, where the prediction is the suit's step and carries its stride and heading
+    # errors). The rig's site reads (5th / 50th / 95th percentile) a tilt 0.003 / 0.013 / 0.17 (seen at long range),
+    # the turn about the vertical 0.05 / 0.19 / 0.54, the least shift 0.016 / 0.025 / 0.27; an open field (terrain
+    # "open") the turn about the vertical 0.000 / 0.001 / 0.002, the least shift 0.000 / 0.002 / 0.008 and the next
+    # 0.000 / 0.007 / 0.030, where ICP slid 20-60 cm sideways in 30 s. Holding the site's shifts more (a band of
+    # 0.01-0.05 for every motion) put a graph resumed from its saved state 10 cm off (docs/hsc4d/odometry.md "What a
+    # sweep pins down")
+    pinned_tilt_information: tuple[float, float] = (0.01, 0.05)
+    pinned_information: tuple[float, float] = (0.01, 0.03)
 
     def __post_init__(self) -> None:
         if not (0.0 < self.voxel_size_m and 0.0 <= self.min_range_m < self.max_range_m
@@ -158,7 +180,8 @@ class OdometryConfig:
                 and self.convergence > 0.0 and self.threads >= 0 and self.speed_ratio >= 1.0
                 and self.speed_floor_mps >= 0.0 and 0.0 <= self.gravity_gain <= 1.0 and self.max_rate_hz >= 0.0
                 and self.vertical_window_s >= 0.0 and self.still_window_s > 0.0 and self.still_accel_mps2 > 0.0
-                and self.still_rate_rad_s > 0.0 and self.vertical_gate_m > 0.0 and self.vertical_gate_mps >= 0.0):
+                and self.still_rate_rad_s > 0.0 and self.vertical_gate_m > 0.0 and self.vertical_gate_mps >= 0.0
+                and _is_band(self.pinned_information) and _is_band(self.pinned_tilt_information)):
             raise ValueError(f"invalid {self}")
 
     def kiss(self) -> KISSConfig:
@@ -204,8 +227,11 @@ class OdometryStep:
     """One registered sweep: its reference time, the pose T_O_L (4, 4), the deskewed points used (in L at the
     reference time), how many took part in the registration, the kiss-icp threshold (m), how far the
     registration moved the initial guess (m, rad), why the registration was not believed ("" if it was; the
-    guess kept) and how far the pose's up was from the suit's gravity before it was turned toward it (deg; NaN
-    without gravity)."""
+    guess kept), how far the pose's up was from the suit's gravity before it was turned toward it (deg; NaN
+    without gravity) and the least information of a shift in the sweep (per point, :func:`pinned_motion`; along a
+    motion under ``OdometryConfig.pinned_information[1]`` the prediction was kept, in part or whole; 0 for a sweep
+    of too few points to tell, all of it kept; NaN: not registered, or the prediction not measured, so nothing
+    kept)."""
 
     stamp_ns: int
     pose: np.ndarray
@@ -216,6 +242,7 @@ class OdometryStep:
     correction_rad: float
     rejected: str = ""
     tilt_deg: float = float("nan")
+    least_shift_information: float = float("nan")
 
     @property
     def registered(self) -> bool:
@@ -361,6 +388,13 @@ class LidarOdometry:
             step_m, pose = float(np.linalg.norm(moved[:3, 3] - pose[:3, 3])), moved
             if step_m < _CONVERGED_M:
                 break
+        # the prediction is kept along what the sweep does not pin down only where it is measured: the suit's step and
+        # the IMU's turn over one sweep; not an extrapolation without the suit, nor one over a gap of seconds
+        if up is not None and gap_s <= _MAX_EXTRAPOLATION_S:
+            pose, least = pinned_motion(pose, guess, source, guess[:3, :3].T @ up, c.pinned_information,
+                                        c.pinned_tilt_information)
+        else:
+            least = float("nan")
         deviation = np.linalg.inv(guess) @ pose
         correction_m = float(np.linalg.norm(deviation[:3, 3]))
         rejected = ""
@@ -390,7 +424,7 @@ class LidarOdometry:
             self._believed_pose = pose
         self.pose, self._stamp_ns = pose, stamp_ns
         return OdometryStep(stamp_ns, pose, frame, len(source), sigma, correction_m,
-                            float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected, tilt)
+                            float(np.linalg.norm(matrix_to_axis_angle(deviation[:3, :3]))), rejected, tilt, least)
 
     def _due(self, stamp_ns: int) -> bool:
         """Whether the sweep at ``stamp_ns`` is to be registered under ``max_rate_hz``."""
@@ -505,6 +539,41 @@ class LidarOdometry:
         if differ <= allowed:
             return ""
         return f"horizontal motion {differ:.2f} m/s off the suit's ({speed:.2f} m/s; allowed {allowed:.2f})"
+
+
+def pinned_motion(pose: np.ndarray, guess: np.ndarray, points: np.ndarray, up: np.ndarray,
+                  band: tuple[float, float], tilt_band: tuple[float, float]) -> tuple[np.ndarray, float]:
+    """The registered ``pose`` T_O_L (4, 4) with its motion away from the ``guess`` (4, 4) kept only along the
+    motions the ``points`` (N, 3; in L, the ones registered) pin down (:func:`registration_constraint`): along an
+    eigen-direction whose information is under ``band[0]`` the guess's, over ``band[1]`` the pose's, linearly
+    between; ``tilt_band`` instead for one that is mostly a turn about an axis square to ``up`` (3,; in the guess's
+    L); a band (0, 0) keeps the pose's. Also the least information of a motion that is mostly a shift (a tilt seen
+    at long range reads low wherever a sweep is; NaN if none is)."""
+    values, vectors, scale = registration_constraint(points)
+    shifts = np.einsum("ij,ij->j", vectors[3:], vectors[3:]) > 0.5
+    least = float(values[shifts].min()) if shifts.any() else float("nan")
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    level = vectors[:3] - np.outer(up, up @ vectors[:3])  # each direction's turn about a horizontal axis
+    tilts = np.einsum("ij,ij->j", level, level) > 0.5
+    gain = np.where(tilts, _band_gain(values, tilt_band), _band_gain(values, band))
+    delta = np.linalg.inv(guess) @ pose  # in the guess's L
+    twist = np.concatenate([matrix_to_axis_angle(delta[:3, :3]) * scale, delta[:3, 3]])
+    kept = vectors @ (gain * (vectors.T @ twist))
+    return guess @ _se3(axis_angle_to_matrix(kept[:3] / scale), kept[3:]), least
+
+
+def _band_gain(values: np.ndarray, band: tuple[float, float]) -> np.ndarray:
+    """How much of a motion with information ``values`` a registration keeps under ``band`` (see
+    :func:`pinned_motion`)."""
+    if band[1] == 0.0:
+        return np.ones_like(values)
+    return np.clip((values - band[0]) / (band[1] - band[0]), 0.0, 1.0)
+
+
+def _is_band(band: tuple[float, float]) -> bool:
+    """Whether ``band`` is a valid ``pinned_information``: two finite numbers, 0 <= low < high, or (0, 0)."""
+    return (isinstance(band, tuple) and len(band) == 2 and bool(np.isfinite(band).all())
+            and (0.0 <= band[0] < band[1] or band == (0.0, 0.0)))
 
 
 def fitted_vertical_velocity(heights: list[tuple[int, float]], vertical: VerticalShift) -> tuple[int, float] | None:

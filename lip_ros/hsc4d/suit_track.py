@@ -42,6 +42,7 @@ class SuitTrack:
         self.T_M_L = self.mount.T_M_L  #: the mounting used: the nominal one until :meth:`set_mount`
         self._T_L_M = self.mount.T_L_M
         self.axes: np.ndarray | None = None  #: the pelvis's axes in the odometry's orientation's, if not the same
+        self.stride_scale = 1.0  #: the suit's horizontal steps times this in :meth:`horizontal_motion` (LiDAR per suit)
 
     def set_mount(self, T_M_L: np.ndarray) -> None:
         """Use this sensor pose (4, 4) in the pelvis frame from now on (e.g. levelled with gravity at the start)."""
@@ -105,10 +106,14 @@ class SuitTrack:
         return None if a is None else self._T_L_M[:3, :3] @ a[:3, :3].T @ np.array([0.0, 0.0, 1.0])
 
     def horizontal_motion(self, t0_ns: int, t1_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """The LiDAR's displacement from ``t0_ns`` to ``t1_ns`` in the LiDAR frame at ``t0_ns``, with its vertical
-        part removed, and that frame's up (3,) each; None if unknown."""
-        motion, up = self.lidar_motion(t0_ns, t1_ns), self.up_in_lidar(t0_ns)
-        if motion is None or up is None:
+        """The LiDAR's displacement from ``t0_ns`` to ``t1_ns`` in the LiDAR frame at ``t0_ns``, the pelvis's
+        horizontal step (in the suit's world, z up; the pose graph scales the pelvis frame's x and z, the same while
+        the pelvis stands upright) scaled by :attr:`stride_scale`, with its vertical part removed, and that frame's
+        up (3,) each; None if unknown."""
+        a, b = self.pelvis(t0_ns), self.pelvis(t1_ns)
+        if a is None or b is None:
             return None
-        d = motion[:3, 3]
+        b[:2, 3] = a[:2, 3] + self.stride_scale * (b[:2, 3] - a[:2, 3])  # the suit's world: z up
+        d = (self._T_L_M @ np.linalg.inv(a) @ b @ self.T_M_L)[:3, 3]
+        up = self._T_L_M[:3, :3] @ a[:3, :3].T @ np.array([0.0, 0.0, 1.0])
         return d - (d @ up) * up, up

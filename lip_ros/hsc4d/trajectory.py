@@ -74,12 +74,17 @@ from lip_ros.hsc4d.site_map import SiteMap, SiteMapConfig
 from lip_ros.hsc4d.suit_track import SuitTrack
 from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
 
-__all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline", "RATE_CAPPED", "RESUME_WAITS"]
+__all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline", "RATE_CAPPED", "RESUME_WAITS",
+           "PINNED"]
 
 #: :attr:`TrajectoryPipeline.counts` key of the sweeps the odometry posed by the suit's motion under its rate cap
 RATE_CAPPED = "sweeps posed by the suit's motion (registration rate cap)"
 #: ... and of the sweeps a resumed trajectory dropped before the suit's samples covered one (no prediction)
 RESUME_WAITS = "sweeps dropped: resumed, before the suit's pose"
+#: ... and of the registrations (believed or not) that kept the prediction's shift along a direction the sweep does
+#: not pin down at all (OdometryStep.least_shift_information under OdometryConfig.pinned_information[0]: an open
+#: field's, or a sweep of too few points to tell)
+PINNED = "registrations that kept the prediction's shift along a direction the sweep does not pin down"
 #: the suit world's heading in map (for a resume) is fitted on the paths of the last this many seconds of outputs
 _HEADING_FIT_S = 3.0
 #: ... if the suit walked this far in them (else from the pelvis orientations)
@@ -384,7 +389,7 @@ class TrajectoryPipeline:
         self.suit.set_offset(state.offset_ns)
         self._set_mount(state.T_M_L)
         self.lever = LeverArmEstimator(tuple(state.T_M_L[:3, 3]))  # the estimate goes on from the lever in use
-        self.stride_scale.value = state.stride_scale
+        self.stride_scale.value = self.suit.stride_scale = state.stride_scale
         self.mount_levelled_deg, self.mount_yaw_deg = state.mount_levelled_deg, state.mount_yaw_deg
         self.spin.skip("as saved (resumed)")
         self.side.skip("as saved (resumed)")
@@ -522,6 +527,8 @@ class TrajectoryPipeline:
         if not step.registered:
             self.counts[RATE_CAPPED] += 1
         else:
+            if step.least_shift_information < self.odometry.config.pinned_information[0]:
+                self.counts[PINNED] += 1
             if step.rejected:
                 self.counts["registrations not believed"] += 1
             self._recent.append((ref, not step.rejected))
@@ -655,7 +662,7 @@ class TrajectoryPipeline:
             return
         registered = np.linalg.inv(anchor_T_O_L) @ T_O_L  # T_Lanchor_L
         suit = np.linalg.inv(T_I_P0) @ T_I_P
-        self.stride_scale.add(ref, self._T_M_L @ registered @ self._T_L_M, suit)
+        self.suit.stride_scale = self.stride_scale.add(ref, self._T_M_L @ registered @ self._T_L_M, suit)
         if self.odometry.gravity is not None:  # the suit's T_Lanchor_L, as SuitTrack's
             self._turn_mount(registered, self._T_L_M @ suit @ self._T_M_L)
             self._move_lever(ref, T_O_L, T_I_P)

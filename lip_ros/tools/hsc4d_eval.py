@@ -1,7 +1,7 @@
 """hsc4d_eval: the HSC4D trajectory on rig captures against the truth and the paper's baselines.
 
   hsc4d_eval --seeds 1000 1001 1002 --seconds 90 --out DIR [--columns 1024] [--rate 10]
-      [--max-registration-hz 10]
+      [--max-registration-hz 10] [--pinned-information 0.01 0.03] [--pinned-tilt-information 0.01 0.05]
 
 Each capture is simulated and played through the live pipeline in arrival
 order (lip_ros.hsc4d.evaluation). Printed per capture and averaged: pelvis ATE
@@ -48,7 +48,7 @@ from lip_ros.core.rotations import geodesic_angle
 from lip_ros.hsc4d import evaluation as ev
 from lip_ros.hsc4d.lidar_odometry import OdometryConfig
 from lip_ros.hsc4d.mount import HipMountPrior, LeverArmEstimator
-from lip_ros.hsc4d.trajectory import RATE_CAPPED, TrajectoryConfig
+from lip_ros.hsc4d.trajectory import PINNED, RATE_CAPPED, TrajectoryConfig
 from lip_ros.rig.site_capture import SiteCapture
 from lip_ros.tools.site_variants import add_site_arguments, site_capture_config
 
@@ -131,6 +131,13 @@ def main(argv: list[str] | None = None) -> int:
     add_site_arguments(parser)
     parser.add_argument("--max-registration-hz", type=float, default=OdometryConfig.max_rate_hz,
                         help="sweeps registered at most this often, the others posed by the suit's motion (0: all)")
+    parser.add_argument("--pinned-information", type=float, nargs=2, default=OdometryConfig.pinned_information,
+                        metavar=("LOW", "HIGH"),
+                        help="a registration's shift or turn about the vertical whose information per point is under "
+                             "LOW is left to the prediction, over HIGH kept, linearly between (0 0: every one kept)")
+    parser.add_argument("--pinned-tilt-information", type=float, nargs=2,
+                        default=OdometryConfig.pinned_tilt_information, metavar=("LOW", "HIGH"),
+                        help="the same for a registration's tilt, left to the pelvis IMU's turn")
     parser.add_argument("--nominal-spin", type=float, default=HipMountPrior.spin_deg, metavar="DEG",
                         help="the method's nominal spin of the hip LiDAR (params/hsc4d.yaml's mount_spin_deg)")
     parser.add_argument("--no-check-mount", action="store_true",
@@ -141,8 +148,13 @@ def main(argv: list[str] | None = None) -> int:
                              "at the start (params/hsc4d.yaml's check_mount_hip false)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    config = TrajectoryConfig(mount=HipMountPrior(spin_deg=args.nominal_spin),
-                              odometry=OdometryConfig(max_rate_hz=args.max_registration_hz),
+    try:
+        odometry = OdometryConfig(max_rate_hz=args.max_registration_hz,
+                                  pinned_information=tuple(args.pinned_information),
+                                  pinned_tilt_information=tuple(args.pinned_tilt_information))
+    except ValueError:
+        parser.error("a band of information is 0 <= LOW < HIGH, or 0 0; a rate is not negative")
+    config = TrajectoryConfig(mount=HipMountPrior(spin_deg=args.nominal_spin), odometry=odometry,
                               check_mount=not args.no_check_mount, check_hip=not args.no_check_hip)
     args.out.mkdir(parents=True, exist_ok=True)
     runs, report = [], {}
@@ -179,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
             "hand_eye_mount_error_deg": float("nan") if run.hand_eye is None else float(
                 np.degrees(geodesic_angle(run.hand_eye, run.true_mount[:3, :3]))),
             "not_believed": int(run.rejected.sum()), "sweeps": len(run.t_s),
-            "not_registered": run.counts.get(RATE_CAPPED, 0),
+            "not_registered": run.counts.get(RATE_CAPPED, 0), "pinned": run.counts.get(PINNED, 0),
             "sweep_ms_p50": float(np.median(run.sweep_ms)), "sweep_ms_p99": float(np.percentile(run.sweep_ms, 99)),
             "window_s_mean": float(np.mean(run.window_s)), "refine_s": run.refine_s,
             "capture_s": float(run.t_s[-1] - run.t_s[0]), "counts": run.counts, "wall_s": time.perf_counter() - t0,
@@ -192,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
               f"(nominal {r['nominal_mount_error_deg']:.1f}; by the walk's turns alone "
               f"{r['hand_eye_mount_error_deg']:.1f}), lever arm off by {100 * r['lever_error_m']:.1f} cm "
               f"horizontally (nominal {100 * r['nominal_lever_error_m']:.1f}), "
-              f"{r['not_believed']} registrations not believed, "
+              f"{r['not_believed']} registrations not believed, {r['pinned']} that kept the prediction's shift along a "
+              f"direction the sweep does not pin down, "
               f"{r['not_registered']} sweeps posed by the suit under the registration rate cap, "
               f"sweep p50 {r['sweep_ms_p50']:.0f} ms p99 {r['sweep_ms_p99']:.0f} ms (the simulation runs between), "
               f"optimisation {r['window_s_mean']:.2f} s per window, the offline refinement {r['refine_s']:.1f} s "

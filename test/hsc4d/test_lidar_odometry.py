@@ -15,6 +15,7 @@ from lip_ros.hsc4d.lidar_odometry import (
     OdometryConfig,
     WearerFilter,
     fitted_vertical_velocity,
+    pinned_motion,
 )
 from lip_ros.hsc4d.mount import HipMountPrior
 from lip_ros.hsc4d.pelvis_rotation import PelvisRotation
@@ -294,6 +295,58 @@ def test_deskewing_with_the_true_rotation_undoes_the_sweeps_distortion():
     deskewed = odometry.deskew(seen, t, ref, lambda times, at: axis_angle_to_matrix(((times - at) * 1e-9)[:, None]
                                                                                     * omega))
     np.testing.assert_allclose(deskewed, world, atol=1e-9)
+
+
+def _ground_and_walls(rng: np.random.Generator, walls: bool) -> np.ndarray:
+    """(N, 3) points in L: a ground 1 m below the sensor 30 m across, and, if ``walls``, four walls round it."""
+    ground = np.concatenate([rng.uniform(-15.0, 15.0, (3000, 2)), np.full((3000, 1), -1.0)], axis=1)
+    if not walls:
+        return ground
+    a, z = rng.uniform(-6.0, 6.0, (4, 1200)), rng.uniform(-1.0, 3.0, (4, 1200))
+    sides = [np.stack([np.full(1200, x), a[k], z[k]], 1) for k, x in enumerate((-7.0, 8.0))]
+    sides += [np.stack([a[k + 2], np.full(1200, y), z[k + 2]], 1) for k, y in enumerate((-6.0, 9.0))]
+    return np.concatenate([ground[np.abs(ground[:, :2]).max(axis=1) < 6.0], *sides])
+
+
+def test_a_registration_keeps_the_prediction_along_what_the_sweep_does_not_pin_down():
+    """On an open field a registration 30 cm and 2 deg off its guess across the ground, 5 cm and 1 deg off in height
+    and tilt: the guess's shift across and turn about the vertical stay, the height and the tilt are the
+    registration's; with walls round it a registration's shift and turn stand as they are; a tilt has a band of
+    its own."""
+    guess = np.eye(4)
+    guess[:3, :3], guess[:3, 3] = axis_angle_to_matrix(np.array([0.0, 0.0, 0.7])), [4.0, -2.0, 1.0]
+    off = np.eye(4)
+    off[:3, :3] = axis_angle_to_matrix(np.radians([1.0, 0.0, 2.0]))
+    off[:3, 3] = [0.3, -0.2, 0.05]
+    pose, up, bands = guess @ off, np.array([0.0, 0.0, 1.0]), (OdometryConfig.pinned_information,
+                                                                 OdometryConfig.pinned_tilt_information)
+    rng = np.random.default_rng(0)
+    field = _ground_and_walls(rng, walls=False)
+    pinned, least = pinned_motion(pose, guess, field, up, *bands)
+    kept = np.linalg.inv(guess) @ pinned
+    assert least < 1e-6
+    np.testing.assert_allclose(kept[:3, 3], [0.0, 0.0, 0.05], atol=2e-3)
+    np.testing.assert_allclose(matrix_to_axis_angle(kept[:3, :3]), np.radians([1.0, 0.0, 0.0]), atol=1e-3)
+    # a strip of ground along y pins a turn about x more than one about y (0.9 and 0.1: the points' spread over their
+    # RMS range, squared): under a tilt band of 1-2 and every other motion kept, a tilt about x is the guess's; told
+    # that up is x, the same turn is one about the vertical, kept
+    strip, only_tilt = field[np.abs(field[:, 0]) < 5.0], ((0.0, 0.0), (1.0, 2.0))
+    tilt = guess.copy()
+    tilt[:3, :3] = guess[:3, :3] @ axis_angle_to_matrix(np.radians([1.0, 0.0, 0.0]))
+    np.testing.assert_allclose(pinned_motion(tilt, guess, strip, up, *only_tilt)[0], guess, atol=2e-3)
+    np.testing.assert_allclose(pinned_motion(tilt, guess, strip, np.array([1.0, 0.0, 0.0]), *only_tilt)[0], tilt,
+                               atol=1e-3)
+    off[:3, :3] = axis_angle_to_matrix(np.radians([0.0, 0.0, 2.0]))  # walls pin the shifts and the turn
+    pose = guess @ off
+    pinned, least = pinned_motion(pose, guess, _ground_and_walls(rng, walls=True), up, *bands)
+    assert least > 0.05
+    np.testing.assert_allclose(pinned[:3, 3], pose[:3, 3], atol=5e-3)
+    turn = np.degrees(matrix_to_axis_angle(pinned[:3, :3].T @ pose[:3, :3]))  # in L: the tilt couples to a shift
+    assert abs(turn[2]) < 0.01 and np.abs(turn).max() < 0.3
+    OdometryConfig(pinned_information=(0.0, 0.0), pinned_tilt_information=(0.0, 0.0))  # every registration as it is
+    for band in ((0.05, 0.01), (0.01, 0.01), (-0.01, 0.01), (0.01, np.inf), (0.01,), (0.01, 0.03, 0.05), [0.01, 0.03]):
+        with pytest.raises(ValueError):
+            OdometryConfig(pinned_tilt_information=band)
 
 
 def test_an_empty_sweep_keeps_the_prediction_and_time_must_go_forward():

@@ -97,7 +97,8 @@ def test_the_live_graph_keeps_only_its_lag():
 
 def test_the_suit_track_gives_the_lidars_motion_and_gravity_whatever_the_suits_heading():
     """A suit whose world is turned by 70 deg and whose clock is 0.4 s ahead: the LiDAR's relative motion
-    between two LiDAR-clock times is the truth's, its horizontal part and up (the mounting's) too; nothing
+    between two LiDAR-clock times is the truth's, its horizontal part (the pelvis's steps scaled by the stride
+    scale) and up (the mounting's) too; nothing
     before the offset is set or outside the samples; bad samples are refused with a reason."""
     truth = _walk(100, slice(50, 70))  # at 10 Hz; the suit samples it at 100 Hz below
     mount = HipMountPrior()
@@ -122,6 +123,12 @@ def test_the_suit_track_gives_the_lidars_motion_and_gravity_whatever_the_suits_h
     assert np.allclose(up, mount.R_M_L.T @ [0.0, 1.0, 0.0], atol=1e-9)
     d = expected[:3, 3]
     assert np.allclose(horizontal, d - (d @ up) * up, atol=1e-6) and abs(horizontal @ up) < 1e-9
+    track.stride_scale = 1.1  # the stride scale the trajectory measured: the pelvis's horizontal steps 1.1 times
+    stepped = truth[21].copy()
+    stepped[:2, 3] = truth[20][:2, 3] + 1.1 * (truth[21][:2, 3] - truth[20][:2, 3])
+    d = (np.linalg.inv(truth[20] @ T_M_L) @ stepped @ T_M_L)[:3, 3]
+    assert np.allclose(track.horizontal_motion(int(20e8), int(21e8))[0], d - (d @ up) * up, atol=1e-6)
+    assert np.allclose(track.lidar_motion(int(20e8), int(21e8)), expected, atol=1e-6)  # the motion itself unscaled
     assert track.lidar_motion(int(-1e8), int(1e8)) is None and track.pelvis(int(200e8)) is None
     assert track.add(int(200e8), [np.nan, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]) == "not finite"
     assert "norm" in track.add(int(200e8), [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 2.0])

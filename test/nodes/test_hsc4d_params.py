@@ -49,6 +49,8 @@ def test_shipped_defaults_agree_with_the_ros_free_defaults_and_the_contract():
     assert trajectory["check_mount_hip"] == config.check_hip
     assert trajectory["hold_s"] == config.hold_s and trajectory["map_after_s"] == config.map_after_s
     assert trajectory["max_registration_hz"] == config.odometry.max_rate_hz
+    assert tuple(trajectory["pinned_information"]) == config.odometry.pinned_information
+    assert tuple(trajectory["pinned_tilt_information"]) == config.odometry.pinned_tilt_information
     assert trajectory["suit_rate_hz"] == body["suit_rate_hz"] == config.suit_rate_hz
     assert trajectory["lidar_topic"] == sensors.HIP_LIDAR_TOPIC
     assert trajectory["suit_odometry_topic"] == body["suit_odometry_topic"] == sensors.SUIT_ODOMETRY_TOPIC
@@ -78,6 +80,7 @@ def test_fusion_node_branch_comes_from_its_parameter():
     (["-p", "branch:=nope"], "branch must be one of"),
     (["-p", "branch:=hsc4d", "-p", "mount_lever_m:=[0.1]"], "mount_lever_m must be a list of 3 finite numbers"),
     (["-p", "branch:=hsc4d", "-p", "body_scale:=-1.0"], "body_scale must be >= 0"),
+    (["-p", "branch:=hsc4d", "-p", "pinned_information:=[0.03, 0.01]"], "invalid OdometryConfig"),
 ])
 def test_bad_parameters_stop_the_hsc4d_graph_with_one_line(args, message):
     proc = subprocess.run([console_script("fusion_node"), "--ros-args", *args], capture_output=True, text=True,

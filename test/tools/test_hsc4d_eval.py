@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from lip_ros.rig.site_capture import SiteCapture
 from lip_ros.tools import hsc4d_eval
 
@@ -37,3 +39,13 @@ def test_the_refinement_is_held_to_both_live_outputs_on_every_metric_but_the_sha
     line = hsc4d_eval._shortfalls_line({"live": live, "live_optimised": optimised, "refined": refined})
     assert "vertical by 0.14 cm (live graph)" in line and "MPJPE by 0.0001 mm (live optimised)" in line
     assert "every metric" in hsc4d_eval._shortfalls_line({"live": live, "live_optimised": live, "refined": live})
+
+
+def test_a_band_of_information_out_of_order_is_refused_before_any_capture(tmp_path, capsys):
+    """``--pinned-information`` / ``--pinned-tilt-information`` take LOW HIGH; one that is not 0 <= LOW < HIGH (nor
+    0 0) is a usage error (exit 2), nothing simulated."""
+    for option in ("--pinned-information", "--pinned-tilt-information"):
+        with pytest.raises(SystemExit) as stop:
+            hsc4d_eval.main(["--seeds", "0", option, "0.05", "0.01", "--out", str(tmp_path)])
+        assert stop.value.code == 2 and "0 <= LOW < HIGH" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())

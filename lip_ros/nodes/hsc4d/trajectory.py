@@ -188,6 +188,12 @@ class TrajectoryNode(GraphNode):
                              non_negative),
         "max_registration_hz": Param("sweeps are registered at most this often, the others posed by the suit's "
                                      "motion (0: every sweep)", non_negative),
+        "pinned_information": Param("[low, high]: a registration's shift or turn about the vertical whose "
+                                    "information per point (how well the sweep's surfaces pin it) is under low "
+                                    "is left to the suit's step, over high kept, linearly between ([0, 0]: every "
+                                    "one kept)", numbers(2)),
+        "pinned_tilt_information": Param("[low, high]: the same for a registration's tilt, left to the pelvis "
+                                         "IMU's turn", numbers(2)),
         "resume_file": Param("the trajectory's state, written every resume_period_s (YAML, its local map beside it "
                              "as <file>.map.npz); read at start: a restart goes on from it without a jump, and "
                              "hsc4d_body_node takes the standing pelvis height from it ('' = off)"),
@@ -203,7 +209,9 @@ class TrajectoryNode(GraphNode):
             self._config = TrajectoryConfig(
                 mount=HipMountPrior(tuple(map(float, p["mount_lever_m"])), float(p["mount_tilt_up_deg"]),
                                     float(p["mount_spin_deg"])),
-                odometry=OdometryConfig(max_rate_hz=float(p["max_registration_hz"])),
+                odometry=OdometryConfig(max_rate_hz=float(p["max_registration_hz"]),
+                                        pinned_information=tuple(map(float, p["pinned_information"])),
+                                        pinned_tilt_information=tuple(map(float, p["pinned_tilt_information"]))),
                 hold_s=float(p["hold_s"]), map_after_s=float(p["map_after_s"]), suit_rate_hz=float(p["suit_rate_hz"]),
                 check_mount=bool(p["check_mount"]), check_hip=bool(p["check_mount_hip"]))
         except ValueError as exc:
