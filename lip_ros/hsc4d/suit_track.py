@@ -95,15 +95,13 @@ class SuitTrack:
     def lidar_motion(self, t0_ns: int, t1_ns: int) -> np.ndarray | None:
         """T_L0_L1 (4, 4): the LiDAR at ``t1_ns`` in the LiDAR at ``t0_ns`` as the suit has it; None if unknown."""
         a, b = self.pelvis(t0_ns), self.pelvis(t1_ns)
-        if a is None or b is None:
-            return None
-        return self._T_L_M @ np.linalg.inv(a) @ b @ self.T_M_L
+        return None if a is None or b is None else self._lidar_between(a, b)
 
     def up_in_lidar(self, t_ns: int) -> np.ndarray | None:
         """(3,) gravity's up in the LiDAR frame at ``t_ns`` (the suit's z, through the mounting); None if
         unknown."""
         a = self.pelvis(t_ns)
-        return None if a is None else self._T_L_M[:3, :3] @ a[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        return None if a is None else self._up_in_lidar(a)
 
     def horizontal_motion(self, t0_ns: int, t1_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
         """The LiDAR's displacement from ``t0_ns`` to ``t1_ns`` in the LiDAR frame at ``t0_ns``, the pelvis's
@@ -114,6 +112,13 @@ class SuitTrack:
         if a is None or b is None:
             return None
         b[:2, 3] = a[:2, 3] + self.stride_scale * (b[:2, 3] - a[:2, 3])  # the suit's world: z up
-        d = (self._T_L_M @ np.linalg.inv(a) @ b @ self.T_M_L)[:3, 3]
-        up = self._T_L_M[:3, :3] @ a[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        d, up = self._lidar_between(a, b)[:3, 3], self._up_in_lidar(a)
         return d - (d @ up) * up, up
+
+    def _lidar_between(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """T_L0_L1 (4, 4) from the pelvis poses ``a`` at t0 and ``b`` at t1 (4, 4; the suit's world)."""
+        return self._T_L_M @ np.linalg.inv(a) @ b @ self.T_M_L
+
+    def _up_in_lidar(self, a: np.ndarray) -> np.ndarray:
+        """(3,) gravity's up in the LiDAR frame where the pelvis pose is ``a`` (4, 4)."""
+        return self._T_L_M[:3, :3] @ a[:3, :3].T @ np.array([0.0, 0.0, 1.0])
