@@ -30,8 +30,9 @@ pose graph, in one object the nodes and the batch tools share (ROS-free).
    the believed registrations as landmarks, the suit's motion between sweeps
    as between factors, with the odometry's vertical (the suit knows no
    stairs) and its horizontal scaled by the suit's stride-scale error
-   (:class:`StrideScale`: the believed registrations' horizontal path over the
-   suit's, over the last ``scale_window_s``).
+   (:class:`StrideScale`: the believed registrations' horizontal motion along
+   the suit's steps over the suit's path, on the level, over the last
+   ``scale_window_s``).
 
 Every output is the pelvis pose at the sweep's reference time (the middle of
 its points' times) on the LiDAR's clock, in ``map``. The caller puts each
@@ -112,6 +113,9 @@ class TrajectoryConfig:
     scale_window_s: float = 20.0  # the suit's stride scale is measured over this much believed walking
     scale_min_path_m: float = 5.0  # ... once the suit has walked this far in it (1 before)
     max_scale_error: float = 0.2  # the scale is kept within 1 -+ this
+    scale_max_grade: float = 0.04  # ... from the steps where the wearer climbed less than this of the path (rig:
+    #   the suit strides 3 % longer on its stairs than on the level)
+    scale_grade_window_s: float = 1.0  # ... over this long around the step (a stride: the pelvis's bob cancels)
     record_s: float = 3600.0  # each sweep's factors kept this long for the offline refinement (256 B a sweep)
     seed: int = 0  # of the RANSAC fits
     suit_rate_hz: float = SUIT_RATE_HZ  # samples per second of each suit stream, to size its buffers
@@ -137,7 +141,8 @@ class TrajectoryConfig:
 
     def __post_init__(self) -> None:
         if not (self.hold_s > 0.0 and self.map_after_s >= 0.0 and self.record_s > 0.0 and self.scale_window_s > 0.0
-                and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0 and self.suit_rate_hz > 0.0
+                and self.scale_min_path_m > 0.0 and 0.0 <= self.max_scale_error < 1.0 and self.scale_max_grade > 0.0
+                and self.scale_grade_window_s > 0.0 and self.suit_rate_hz > 0.0
                 and self.max_mount_disagreement_deg > 0.0 and 0.0 <= self.min_believed_share <= 1.0
                 and self.believed_window_s > 0.0 and self.max_odometry_tilt_deg > 0.0):
             raise ValueError(f"invalid {self}")
@@ -165,30 +170,52 @@ class TrajectoryStep:
 
 
 class StrideScale:
-    """The suit's stride scale against the LiDAR: the horizontal path (in the pelvis frame: its x and z) of the
-    believed registrations over the suit's, over a sliding window of ``window_s`` seconds; 1 until the suit
-    walked ``min_path_m`` in it; kept within 1 -+ ``max_error``."""
+    """The suit's stride scale against the LiDAR, over the level walking of a sliding window of ``window_s``
+    seconds: the registered steps' horizontal motion (in the pelvis frame: its x and z) along the suit's steps,
+    over the suit's path; 1 until the suit walked ``min_path_m`` in it; kept within 1 -+ ``max_error``.
 
-    def __init__(self, window_s: float, min_path_m: float, max_error: float) -> None:
+    A step counts once the ``grade_window_s`` around it is known, if the wearer climbed less than ``max_grade``
+    of the horizontal path over it (the LiDAR's vertical: a suit that knows no stairs or slopes strides
+    differently on them, docs/hsc4d/trajectory.md) and its registration kept its own shifts (one held to the
+    prediction only repeats the scale in use). The motion along the suit's step, not its length: the length of
+    each sweep's noisy step is biased long."""
+
+    def __init__(self, window_s: float, min_path_m: float, max_error: float, max_grade: float,
+                 grade_window_s: float) -> None:
         self.window_ns, self.min_path_m, self.max_error = int(window_s * 1e9), min_path_m, max_error
-        self._steps: deque[tuple[int, float, float]] = deque()
+        self.max_grade, self.grade_half_ns = max_grade, int(grade_window_s * 0.5e9)
+        self._recent: deque[tuple[int, float, float, float, float, bool]] = deque()  # steps waiting for the grade
+        self._counted: deque[tuple[int, float, float]] = deque()
         self._lidar = self._suit = 0.0
         self.value = 1.0
 
-    def add(self, stamp_ns: int, lidar_step: np.ndarray, suit_step: np.ndarray) -> float:
-        """One believed step's T_Pprev_P by the LiDAR and by the suit; the scale now (LiDAR per suit)."""
-        lidar, suit = float(np.hypot(lidar_step[0, 3], lidar_step[2, 3])), float(np.hypot(suit_step[0, 3],
-                                                                                            suit_step[2, 3]))
-        self._steps.append((stamp_ns, lidar, suit))
-        self._lidar += lidar
+    def add(self, stamp_ns: int, lidar_step: np.ndarray, suit_step: np.ndarray, kept: bool) -> float:
+        """One believed step's T_Pprev_P by the LiDAR and by the suit, whether its registration ``kept`` its own
+        shifts; the scale now (LiDAR per suit)."""
+        suit = float(np.hypot(suit_step[0, 3], suit_step[2, 3]))
+        along = float(lidar_step[0, 3] * suit_step[0, 3] + lidar_step[2, 3] * suit_step[2, 3]) / max(suit, 1e-9)
+        path = float(np.hypot(lidar_step[0, 3], lidar_step[2, 3]))
+        self._recent.append((stamp_ns, along, suit, path, float(lidar_step[1, 3]), kept))
+        while self._recent[-1][0] - self._recent[0][0] > 2 * self.grade_half_ns:
+            self._count(self._recent.popleft())
+        return self.value
+
+    def _count(self, step: tuple[int, float, float, float, float, bool]) -> None:
+        """Count one step whose grade window is complete, if it was level and kept."""
+        stamp_ns, along, suit, _, _, kept = step
+        near = [s for s in (step, *self._recent) if abs(s[0] - stamp_ns) <= self.grade_half_ns]
+        climb, path = abs(sum(s[4] for s in near)), sum(s[3] for s in near)
+        if not kept or climb > self.max_grade * path:
+            return
+        self._counted.append((stamp_ns, along, suit))
+        self._lidar += along
         self._suit += suit
-        while self._steps[0][0] < stamp_ns - self.window_ns:
-            _, a, b = self._steps.popleft()
+        while self._counted[0][0] < stamp_ns - self.window_ns:
+            _, a, b = self._counted.popleft()
             self._lidar -= a
             self._suit -= b
         if self._suit >= self.min_path_m:
             self.value = float(np.clip(self._lidar / self._suit, 1.0 - self.max_error, 1.0 + self.max_error))
-        return self.value
 
 
 @dataclass(frozen=True)
@@ -215,7 +242,8 @@ class TrajectoryPipeline:
         self.jump = JumpSync(c.jump)
         self.odometry = LidarOdometry(c.odometry, WearerFilter(c.mount.T_M_L))
         self.graph = LiveTrajectoryGraph(c.graph)
-        self.stride_scale = StrideScale(c.scale_window_s, c.scale_min_path_m, c.max_scale_error)
+        self.stride_scale = StrideScale(c.scale_window_s, c.scale_min_path_m, c.max_scale_error, c.scale_max_grade,
+                                        c.scale_grade_window_s)
         self.map_frame: MapFrame | None = None
         self.mount_levelled_deg = float("nan")  #: how far levelling turned the nominal mounting
         self.odometry_tilt_deg = float("nan")  #: the suit odometry's pelvis up from its pelvis IMU's at the start
@@ -547,7 +575,9 @@ class TrajectoryPipeline:
                 between = np.linalg.inv(suit[0]) @ suit[1]
                 lidar = self._T_M_L @ np.linalg.inv(previous_pose) @ step.pose @ self._T_L_M
                 if not step.rejected and anchor is not None:
-                    self._hand_eye(ref, step.pose, suit[1], *anchor)
+                    # a shift held (wholly or in part) to the prediction says nothing of the stride scale
+                    kept = not step.least_shift_information < self.odometry.config.pinned_information[1]
+                    self._hand_eye(ref, step.pose, suit[1], *anchor, kept)
                 between[[0, 2], 3] *= self.stride_scale.value
                 between[1, 3] = lidar[1, 3]  # the vertical (P's y) the suit does not know: the odometry's
         self._stamps.append(ref)
@@ -652,17 +682,17 @@ class TrajectoryPipeline:
             self.mount_yaw_deg += float(np.degrees(angle))
             self._set_mount_rotation(self._T_M_L[:3, :3] @ axis_angle_to_matrix(-angle * axis))
 
-    def _hand_eye(self, ref: int, T_O_L: np.ndarray, T_I_P: np.ndarray, anchor_ns: int, anchor_T_O_L: np.ndarray
-                  ) -> None:
+    def _hand_eye(self, ref: int, T_O_L: np.ndarray, T_I_P: np.ndarray, anchor_ns: int, anchor_T_O_L: np.ndarray,
+                  kept: bool) -> None:
         """A believed registration at ``ref``: its motion since the last registered sweep (``anchor_ns``; the
         previous sweep unless the odometry's rate cap posed that one by the suit) against the suit's, for the
-        stride scale and the mounting."""
+        stride scale (if the registration ``kept`` its own shifts) and the mounting."""
         T_I_P0 = self.suit.pelvis(anchor_ns)
         if T_I_P0 is None:
             return
         registered = np.linalg.inv(anchor_T_O_L) @ T_O_L  # T_Lanchor_L
         suit = np.linalg.inv(T_I_P0) @ T_I_P
-        self.suit.stride_scale = self.stride_scale.add(ref, self._T_M_L @ registered @ self._T_L_M, suit)
+        self.suit.stride_scale = self.stride_scale.add(ref, self._T_M_L @ registered @ self._T_L_M, suit, kept)
         if self.odometry.gravity is not None:  # the suit's T_Lanchor_L, as SuitTrack's
             self._turn_mount(registered, self._T_L_M @ suit @ self._T_M_L)
             self._move_lever(ref, T_O_L, T_I_P)
