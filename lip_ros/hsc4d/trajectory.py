@@ -46,6 +46,7 @@ from __future__ import annotations
 
 from collections import Counter, deque
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -110,12 +111,13 @@ class TrajectoryConfig:
     #                         trajectory.md "Rig variants: the other hip")
     hold_s: float = 15.0  # sweeps held while waiting for the jump (about 0.8 MB each at 1024 x 64)
     map_after_s: float = 1.0  # registered capture before the map frame is fixed (the wearer stands still)
-    scale_window_s: float = 20.0  # the suit's stride scale is measured over this much believed walking
+    scale_window_s: float = 20.0  # the suit's stride scale is measured over this much level walking whose
+    #                               registrations were believed and kept their shifts
     scale_min_path_m: float = 5.0  # ... once the suit has walked this far in it (1 before)
     max_scale_error: float = 0.2  # the scale is kept within 1 -+ this
-    scale_max_grade: float = 0.04  # ... from the steps where the wearer climbed less than this of the path (rig:
+    scale_max_grade: float = 0.04  # ... from the steps where the pelvis rose or fell less than this of the path (rig:
     #   the suit strides 3 % longer on its stairs than on the level)
-    scale_grade_window_s: float = 1.0  # ... over this long around the step (a stride: the pelvis's bob cancels)
+    scale_grade_window_s: float = 1.0  # ... over this long, centred on the step (a stride: the pelvis's bob cancels)
     record_s: float = 3600.0  # each sweep's factors kept this long for the offline refinement (256 B a sweep)
     seed: int = 0  # of the RANSAC fits
     suit_rate_hz: float = SUIT_RATE_HZ  # samples per second of each suit stream, to size its buffers
@@ -169,51 +171,70 @@ class TrajectoryStep:
     points: np.ndarray
 
 
+class _Step(NamedTuple):
+    """One believed step, for :class:`StrideScale`."""
+
+    stamp_ns: int
+    along_m: float  # the LiDAR's horizontal motion along the suit's step
+    suit_m: float  # the suit's horizontal step
+    path_m: float  # the LiDAR's horizontal step
+    rise_m: float  # the pelvis's rise, along gravity
+    kept: bool  # the registration kept its own shifts
+
+
 class StrideScale:
     """The suit's stride scale against the LiDAR, over the level walking of a sliding window of ``window_s``
     seconds: the registered steps' horizontal motion (in the pelvis frame: its x and z) along the suit's steps,
-    over the suit's path; 1 until the suit walked ``min_path_m`` in it; kept within 1 -+ ``max_error``.
+    over the suit's path; 1 until the suit first walked ``min_path_m`` in it, then the last value while it has
+    less; kept within 1 -+ ``max_error``.
 
-    A step counts once the ``grade_window_s`` around it is known, if the wearer climbed less than ``max_grade``
-    of the horizontal path over it (the LiDAR's vertical: a suit that knows no stairs or slopes strides
-    differently on them, docs/hsc4d/trajectory.md) and its registration kept its own shifts (one held to the
-    prediction only repeats the scale in use). The motion along the suit's step, not its length: the length of
-    each sweep's noisy step is biased long."""
+    A step counts once the ``grade_window_s`` centred on it is known, if the wearer rose or fell less than
+    ``max_grade`` of the horizontal path over it (a suit that knows no stairs or slopes strides differently on
+    them, docs/hsc4d/trajectory.md) and its registration kept its own shifts (one held to the prediction only
+    repeats the scale in use). The motion along the suit's step, not its length: the length of each sweep's
+    noisy step is biased long. Steps with a non-finite value are left out."""
 
     def __init__(self, window_s: float, min_path_m: float, max_error: float, max_grade: float,
                  grade_window_s: float) -> None:
         self.window_ns, self.min_path_m, self.max_error = int(window_s * 1e9), min_path_m, max_error
         self.max_grade, self.grade_half_ns = max_grade, int(grade_window_s * 0.5e9)
-        self._recent: deque[tuple[int, float, float, float, float, bool]] = deque()  # steps waiting for the grade
-        self._counted: deque[tuple[int, float, float]] = deque()
+        self._past: deque[_Step] = deque()  # judged steps of the last half window
+        self._recent: deque[_Step] = deque()  # steps waiting for the half window after them
+        self._counted: deque[_Step] = deque()
         self._lidar = self._suit = 0.0
         self.value = 1.0
 
-    def add(self, stamp_ns: int, lidar_step: np.ndarray, suit_step: np.ndarray, kept: bool) -> float:
-        """One believed step's T_Pprev_P by the LiDAR and by the suit, whether its registration ``kept`` its own
-        shifts; the scale now (LiDAR per suit)."""
+    def add(self, stamp_ns: int, lidar_step: np.ndarray, suit_step: np.ndarray, rise_m: float, kept: bool
+            ) -> float:
+        """One believed step's T_Pprev_P by the LiDAR and by the suit, the pelvis's rise over it along gravity,
+        whether its registration ``kept`` its own shifts; the scale now (LiDAR per suit)."""
         suit = float(np.hypot(suit_step[0, 3], suit_step[2, 3]))
         along = float(lidar_step[0, 3] * suit_step[0, 3] + lidar_step[2, 3] * suit_step[2, 3]) / max(suit, 1e-9)
-        path = float(np.hypot(lidar_step[0, 3], lidar_step[2, 3]))
-        self._recent.append((stamp_ns, along, suit, path, float(lidar_step[1, 3]), kept))
-        while self._recent[-1][0] - self._recent[0][0] > 2 * self.grade_half_ns:
-            self._count(self._recent.popleft())
+        step = _Step(int(stamp_ns), along, suit, float(np.hypot(lidar_step[0, 3], lidar_step[2, 3])), float(rise_m),
+                     kept)
+        if not np.isfinite(step[1:5]).all():
+            return self.value
+        self._recent.append(step)
+        while self._recent[-1].stamp_ns - self._recent[0].stamp_ns > self.grade_half_ns:
+            self._judge(self._recent.popleft())
         return self.value
 
-    def _count(self, step: tuple[int, float, float, float, float, bool]) -> None:
-        """Count one step whose grade window is complete, if it was level and kept."""
-        stamp_ns, along, suit, _, _, kept = step
-        near = [s for s in (step, *self._recent) if abs(s[0] - stamp_ns) <= self.grade_half_ns]
-        climb, path = abs(sum(s[4] for s in near)), sum(s[3] for s in near)
-        if not kept or climb > self.max_grade * path:
+    def _judge(self, step: _Step) -> None:
+        """Count ``step``, whose half windows before and after are known, if it was level and kept."""
+        while self._past and self._past[0].stamp_ns < step.stamp_ns - self.grade_half_ns:
+            self._past.popleft()
+        near = [*self._past, step, *(s for s in self._recent if s.stamp_ns - step.stamp_ns <= self.grade_half_ns)]
+        self._past.append(step)
+        rise, path = abs(sum(s.rise_m for s in near)), sum(s.path_m for s in near)
+        if not step.kept or rise > self.max_grade * path:
             return
-        self._counted.append((stamp_ns, along, suit))
-        self._lidar += along
-        self._suit += suit
-        while self._counted[0][0] < stamp_ns - self.window_ns:
-            _, a, b = self._counted.popleft()
-            self._lidar -= a
-            self._suit -= b
+        self._counted.append(step)
+        self._lidar += step.along_m
+        self._suit += step.suit_m
+        while self._counted[0].stamp_ns < step.stamp_ns - self.window_ns:
+            old = self._counted.popleft()
+            self._lidar -= old.along_m
+            self._suit -= old.suit_m
         if self._suit >= self.min_path_m:
             self.value = float(np.clip(self._lidar / self._suit, 1.0 - self.max_error, 1.0 + self.max_error))
 
@@ -575,7 +596,8 @@ class TrajectoryPipeline:
                 between = np.linalg.inv(suit[0]) @ suit[1]
                 lidar = self._T_M_L @ np.linalg.inv(previous_pose) @ step.pose @ self._T_L_M
                 if not step.rejected and anchor is not None:
-                    # a shift held (wholly or in part) to the prediction says nothing of the stride scale
+                    # a shift held (wholly or in part) to the prediction says nothing of the stride scale (NaN:
+                    # nothing held)
                     kept = not step.least_shift_information < self.odometry.config.pinned_information[1]
                     self._hand_eye(ref, step.pose, suit[1], *anchor, kept)
                 between[[0, 2], 3] *= self.stride_scale.value
@@ -692,7 +714,11 @@ class TrajectoryPipeline:
             return
         registered = np.linalg.inv(anchor_T_O_L) @ T_O_L  # T_Lanchor_L
         suit = np.linalg.inv(T_I_P0) @ T_I_P
-        self.suit.stride_scale = self.stride_scale.add(ref, self._T_M_L @ registered @ self._T_L_M, suit, kept)
+        lidar = self._T_M_L @ registered @ self._T_L_M  # T_Panchor_P
+        # the pelvis's rise along gravity (before it is known, along the pelvis's up: the wearer stands still)
+        up = self.odometry.gravity
+        rise = lidar[1, 3] if up is None else float(up @ (T_O_L @ self._T_L_M - anchor_T_O_L @ self._T_L_M)[:3, 3])
+        self.suit.stride_scale = self.stride_scale.add(ref, lidar, suit, rise, kept)
         if self.odometry.gravity is not None:  # the suit's T_Lanchor_L, as SuitTrack's
             self._turn_mount(registered, self._T_L_M @ suit @ self._T_M_L)
             self._move_lever(ref, T_O_L, T_I_P)
