@@ -717,7 +717,7 @@ class TrajectoryPipeline:
         lidar = self._T_M_L @ registered @ self._T_L_M  # T_Panchor_P
         # the pelvis's rise along gravity (before it is known, along the pelvis's up: the wearer stands still)
         up = self.odometry.gravity
-        rise = lidar[1, 3] if up is None else float(up @ (T_O_L @ self._T_L_M - anchor_T_O_L @ self._T_L_M)[:3, 3])
+        rise = lidar[1, 3] if up is None else float(up @ ((T_O_L - anchor_T_O_L) @ self._T_L_M)[:3, 3])
         self.suit.stride_scale = self.stride_scale.add(ref, lidar, suit, rise, kept)
         if self.odometry.gravity is not None:  # the suit's T_Lanchor_L, as SuitTrack's
             self._turn_mount(registered, self._T_L_M @ suit @ self._T_M_L)
