@@ -430,12 +430,13 @@ class ImuSynchronizer:
         of samples stamped ``stamp_ns`` (T,), NaN where the buffer does not bracket them (nothing is held)."""
         return self._bracketed(name, stamp_ns, 3, _linear(_GYRO))
 
-    def relative_rotations(self, name: str, stamp_ns: np.ndarray, ref_ns: int) -> np.ndarray:
-        """R_Sref_S (T, 3, 3) of ``name``: its angular rate integrated from the measurement time of a sample stamped
-        ``ref_ns`` to those of samples stamped ``stamp_ns`` (T,) (the rate interpolated linearly, the turn of each
-        step about its mean rate), so that its orientation output's errors (a fusion filter's tilt and heading
-        corrections) do not enter; NaN where the buffer does not bracket a time or the samples between leave a gap
-        over ``max_gap_ns``."""
+    def relative_rotations(self, name: str, stamp_ns: np.ndarray, ref_ns: int, bias: np.ndarray | None = None
+                           ) -> np.ndarray:
+        """R_Sref_S (T, 3, 3) of ``name``: its angular rate, less ``bias`` (3,) if given, integrated from the
+        measurement time of a sample stamped ``ref_ns`` to those of samples stamped ``stamp_ns`` (T,) (the rate
+        interpolated linearly, the turn of each step about its mean rate), so that its orientation output's errors
+        (a fusion filter's tilt and heading corrections) do not enter; NaN where the buffer does not bracket a time
+        or the samples between leave a gap over ``max_gap_ns``."""
         stamps, rows = self._buffers[name].stamps, self._buffers[name].rows
         times = np.append(np.asarray(stamp_ns, dtype=np.int64), np.int64(ref_ns)) - self._latency_ns[name]
         out = np.full((times.size - 1, 3, 3), np.nan)
@@ -446,6 +447,8 @@ class ImuSynchronizer:
             return out
         first, last = int(before[ok].min()), min(int(before[ok].max()) + 1, stamps.size - 1)
         t, gyro = stamps[first : last + 1], rows[first : last + 1, _GYRO]
+        if bias is not None:
+            gyro = gyro - bias
         dt = np.diff(t) * 1e-9
         step = axis_angle_to_matrix(0.5 * (gyro[1:] + gyro[:-1]) * dt[:, None])
         turned = np.empty((t.size, 3, 3))  # R_S0_S at each sample, S0 the first's

@@ -4,7 +4,8 @@ Partly built (its own issue). The live trajectory, :mod:`~lip_ros.hsc4d.trajecto
 puts together: :mod:`~lip_ros.hsc4d.jump_sync` (the suit's clock from the
 jump) with :mod:`~lip_ros.hsc4d.sweep_height` (the LiDAR's height from each
 sweep's ground); :mod:`~lip_ros.hsc4d.pelvis_rotation` (the LiDAR's rotation
-and vertical motion from the suit's pelvis IMU) and
+and vertical motion from the suit's pelvis IMU, less its gyro's bias from
+:mod:`~lip_ros.hsc4d.gyro_bias`) and
 :mod:`~lip_ros.hsc4d.suit_track` (its motion from the suit's own odometry);
 :mod:`~lip_ros.hsc4d.lidar_odometry` (kiss-icp, the one module that imports
 it); :mod:`~lip_ros.hsc4d.map_frame`; :mod:`~lip_ros.hsc4d.mount` (the nominal

@@ -9,7 +9,8 @@ error of the mounting only turns the rotation axis a little; R_Mref_M is the
 IMU's angular rate integrated, which the orientation output's own errors do not
 reach (the rate taken in the frame whose orientation the message gives, as
 REP 145 has sensor_msgs/Imu: a driver that reports the segment's orientation
-must report the rate in the segment's frame too). The suit's samples are
+must report the rate in the segment's frame too), less the gyro's bias
+measured while the wearer stands still (:class:`lip_ros.hsc4d.gyro_bias.GyroBias`). The suit's samples are
 stamped on its own clock: they are used once the offset is known
 (:meth:`PelvisRotation.set_offset`, from the jump), from a bounded buffer
 (:class:`lip_ros.core.imu_sync.ImuSynchronizer`).
@@ -22,6 +23,7 @@ import numpy as np
 from lip_ros.core.frames import GRAVITY
 from lip_ros.core.imu_sync import ImuSampleLike, ImuSynchronizer, SyncConfig
 from lip_ros.core.rotations import quat_to_matrix
+from lip_ros.hsc4d.gyro_bias import GyroBias, GyroBiasConfig
 
 __all__ = ["PelvisRotation"]
 
@@ -33,11 +35,13 @@ class PelvisRotation:
     """The suit's pelvis orientations, buffered (``capacity`` samples), as the LiDAR's rotation over time once
     the suit's clock offset is set; use an instance as :data:`lip_ros.hsc4d.lidar_odometry.SweepRotation`."""
 
-    def __init__(self, R_M_L: np.ndarray, capacity: int = 512, max_gap_ns: int = 50_000_000) -> None:
+    def __init__(self, R_M_L: np.ndarray, capacity: int = 512, max_gap_ns: int = 50_000_000,
+                 bias: GyroBiasConfig | None = None) -> None:
         self.R_M_L = np.asarray(R_M_L, dtype=np.float64)
         self._sync = ImuSynchronizer([_PELVIS], SyncConfig(capacity=capacity, max_gap_ns=max_gap_ns))
         self.offset_ns: int | None = None
         self.max_gap_ns = int(max_gap_ns)  #: samples further apart than this are not interpolated between
+        self.gyro_bias = GyroBias(bias, max_gap_ns)  #: taken off the rate integrated in :meth:`__call__`
 
     def set_offset(self, offset_ns: int) -> None:
         """The suit's clock is ``offset_ns`` ahead of the LiDAR's (suit stamp = LiDAR stamp + offset)."""
@@ -46,7 +50,11 @@ class PelvisRotation:
 
     def add(self, sample: ImuSampleLike) -> str | None:
         """One pelvis sample (stamped on the suit's clock); why it was rejected, None if kept."""
-        return self._sync.add(_PELVIS, sample)
+        reason = self._sync.add(_PELVIS, sample)
+        if reason is None:
+            self.gyro_bias.add(int(sample.stamp_ns), np.asarray(sample.gyro, dtype=np.float64),
+                               np.asarray(sample.accel, dtype=np.float64))
+        return reason
 
     def rotation_of_lidar(self, t_ns: np.ndarray) -> np.ndarray:
         """R_I_L (N, 3, 3) at LiDAR-clock times ``t_ns`` (N,); NaN where the buffer does not bracket them or the
@@ -112,13 +120,15 @@ class PelvisRotation:
         return accel
 
     def __call__(self, t_ns: np.ndarray, ref_ns: int) -> np.ndarray:
-        """R_Lref_L (N, 3, 3): the LiDAR at ``t_ns`` in the LiDAR at ``ref_ns``, the pelvis IMU's angular rate
-        integrated between (over 0.1 s the rig's suit's orientations are 0.075 deg off at the median, the rate
-        0.005 deg); from its orientations where the samples between leave a gap; NaN where unknown."""
+        """R_Lref_L (N, 3, 3): the LiDAR at ``t_ns`` in the LiDAR at ``ref_ns``, the pelvis IMU's angular rate, less
+        its bias measured standing still (:attr:`gyro_bias`), integrated between (over 0.1 s the rig's suit's
+        orientations are 0.075 deg off at the median, the rate 0.005 deg); from its orientations where the samples
+        between leave a gap; NaN where unknown."""
         t = np.asarray(t_ns, dtype=np.int64)
         if self.offset_ns is None:
             return np.full((t.size, 3, 3), np.nan)
-        turned = self._sync.relative_rotations(_PELVIS, t + self.offset_ns, int(ref_ns) + self.offset_ns)
+        turned = self._sync.relative_rotations(_PELVIS, t + self.offset_ns, int(ref_ns) + self.offset_ns,
+                                               self.gyro_bias.value)
         out = np.einsum("ba,nbc,cd->nad", self.R_M_L, turned, self.R_M_L)
         gap = ~np.isfinite(out).all(axis=(1, 2))
         if gap.any():

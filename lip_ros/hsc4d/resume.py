@@ -4,8 +4,11 @@ A trajectory node that is killed and started again mid-capture would otherwise
 wait for a jump that the performer will not make again. :class:`TrajectoryResume`
 holds what the jump and the first seconds gave: the suit's clock offset, the
 mounting as it was levelled, turned and moved since, the suit's stride scale,
-the last fused pelvis pose with the suit's own pelvis pose at the same moment
-(in the suit's world), and the odometry's local map round it.
+the pelvis gyro's bias (measured in the A-pose: a restarted wearer need not
+stand still again; a file without it, written before session 52, resumes
+with none until the wearer stands still), the last fused pelvis pose with
+the suit's own pelvis pose at the same moment (in the suit's world), and the
+odometry's local map round it.
 :meth:`lip_ros.hsc4d.trajectory.TrajectoryPipeline.resume` starts a new
 trajectory from it: the first sweep is predicted where the suit's motion since
 the saved pose puts the pelvis (the suit knows no stairs: its height is the
@@ -24,7 +27,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -53,6 +56,8 @@ class TrajectoryResume:
     mount_yaw_deg: float  # how far walking turned it since (for the diagnostics)
     map_points: np.ndarray  # (M, 3) float32 the odometry's local map in map
     suit_yaw_rad: float  # the heading of the suit's world in map (its path turned onto the fused one)
+    gyro_bias_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the pelvis gyro's bias (3,)
+    gyro_bias_still_s: float = 0.0  # the still time it was measured over (0: not measured)
 
     def __post_init__(self) -> None:
         for name in ("T_M_L", "T_map_P", "T_I_P"):
@@ -65,6 +70,11 @@ class TrajectoryResume:
                 and np.isfinite(self.suit_yaw_rad)):
             raise ValueError(f"stride scale {self.stride_scale} (> 0) or pelvis height {self.pelvis_height_m} not "
                              "valid")
+        bias = np.asarray(self.gyro_bias_rad_s, dtype=np.float64)
+        if bias.shape != (3,) or not np.isfinite(bias).all() or not self.gyro_bias_still_s >= 0.0:
+            raise ValueError(f"gyro bias {bias.tolist()} (3 finite rad/s) or its still time {self.gyro_bias_still_s} "
+                             "(>= 0 s) not valid")
+        object.__setattr__(self, "gyro_bias_rad_s", bias)
         points = np.asarray(self.map_points, dtype=np.float32)
         if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
             raise ValueError(f"map points must be finite (M, 3), got shape {points.shape}")
@@ -75,6 +85,7 @@ class TrajectoryResume:
         return {"kind": _KIND, "version": _VERSION, "stamp_ns": int(self.stamp_ns), "offset_ns": int(self.offset_ns),
                 **{k: np.asarray(getattr(self, k)).tolist() for k in ("T_M_L", "T_map_P", "T_I_P")},
                 **{k: float(getattr(self, k)) for k in _NUMBERS},
+                "gyro_bias_rad_s": self.gyro_bias_rad_s.tolist(), "gyro_bias_still_s": float(self.gyro_bias_still_s),
                 "map_points": len(self.map_points)}
 
     @classmethod
@@ -84,6 +95,8 @@ class TrajectoryResume:
         return cls(stamp_ns=int(doc["stamp_ns"]), offset_ns=int(doc["offset_ns"]),
                    **{k: np.array(doc[k], dtype=np.float64) for k in ("T_M_L", "T_map_P", "T_I_P")},
                    **{k: float(doc[k]) for k in _NUMBERS},
+                   gyro_bias_rad_s=np.array(doc.get("gyro_bias_rad_s", [0.0, 0.0, 0.0]), dtype=np.float64),
+                   gyro_bias_still_s=float(doc.get("gyro_bias_still_s", 0.0)),
                    map_points=map_points)
 
 

@@ -54,6 +54,7 @@ from lip_ros.core.frames import UP_M
 from lip_ros.core.imu_sync import ImuSampleLike
 from lip_ros.core.metrics import align_yaw_translation
 from lip_ros.core.rotations import axis_angle_to_matrix, geodesic_angle, nearest_axes_turn
+from lip_ros.hsc4d.gyro_bias import GyroBiasConfig
 from lip_ros.hsc4d.jump_sync import JumpSync, JumpSyncConfig
 from lip_ros.hsc4d.lidar_odometry import LidarOdometry, OdometryConfig, WearerFilter
 from lip_ros.hsc4d.map_frame import MapFrame, MapFrameConfig, estimate_map_frame
@@ -106,6 +107,7 @@ class TrajectoryConfig:
     site_map: SiteMapConfig = field(default_factory=SiteMapConfig)
     spin_check: SpinCheckConfig = field(default_factory=SpinCheckConfig)
     side_check: SideCheckConfig = field(default_factory=SideCheckConfig)
+    gyro_bias: GyroBiasConfig = field(default_factory=GyroBiasConfig)  # the pelvis gyro's, from still runs
     check_mount: bool = True  # find the sensor's spin from the first sweeps (False: the mounting as given)
     check_hip: bool = True  # ... and, with check_mount, its hip from the wearer's body in them (docs/hsc4d/
     #                         trajectory.md "Rig variants: the other hip")
@@ -258,7 +260,7 @@ class TrajectoryPipeline:
     def __init__(self, config: TrajectoryConfig | None = None) -> None:
         c = self.config = config or TrajectoryConfig()
         capacity = c.suit_capacity
-        self.rotation = PelvisRotation(c.mount.R_M_L, capacity=capacity)
+        self.rotation = PelvisRotation(c.mount.R_M_L, capacity=capacity, bias=c.gyro_bias)
         self.suit = SuitTrack(c.mount, capacity=capacity)
         self.jump = JumpSync(c.jump)
         self.odometry = LidarOdometry(c.odometry, WearerFilter(c.mount.T_M_L))
@@ -411,7 +413,8 @@ class TrajectoryPipeline:
         return TrajectoryResume(stamp_ns, int(self.offset_ns), self._T_M_L, T_map_P, T_I_P, self.stride_scale.value,
                                 self.map_frame.pelvis_height_m, self.mount_levelled_deg, self.mount_yaw_deg,
                                 self.odometry.map_points() @ T[:3, :3].T + T[:3, 3],
-                                self._suit_yaw(stamp_ns, T_map_P, T_I_P))
+                                self._suit_yaw(stamp_ns, T_map_P, T_I_P), self.rotation.gyro_bias.value,
+                                self.rotation.gyro_bias.still_s)
 
     def _suit_yaw(self, stamp_ns: int, T_map_P: np.ndarray, T_I_P: np.ndarray) -> float:
         """The suit world's heading in map (rad): the yaw that best turns the suit's path onto the fused one over
@@ -439,6 +442,7 @@ class TrajectoryPipeline:
         self._set_mount(state.T_M_L)
         self.lever = LeverArmEstimator(tuple(state.T_M_L[:3, 3]))  # the estimate goes on from the lever in use
         self.stride_scale.value = self.suit.stride_scale = state.stride_scale
+        self.rotation.gyro_bias.start_from(state.gyro_bias_rad_s, state.gyro_bias_still_s)
         self.mount_levelled_deg, self.mount_yaw_deg = state.mount_levelled_deg, state.mount_yaw_deg
         self.spin.skip("as saved (resumed)")
         self.side.skip("as saved (resumed)")

@@ -7,6 +7,7 @@ import functools
 
 import numpy as np
 import pytest
+import yaml
 
 from lip_ros.hsc4d.evaluation import capture_sweeps
 from lip_ros.hsc4d.lidar_odometry import OdometryConfig
@@ -96,6 +97,9 @@ def test_a_trajectory_resumed_from_its_file_goes_on_without_another_jump(capture
     pipeline.resume(loaded)
     after, _ = _run(capture, pipeline, first=CUT + GAP, since_ns=restart_ns)
     assert pipeline.offset_ns == state.offset_ns and pipeline.status == "tracking"
+    # the gyro's bias from the A-pose goes on (the wearer does not stand still after the restart)
+    assert state.gyro_bias_still_s >= 1.0 and np.array_equal(loaded.gyro_bias_rad_s, state.gyro_bias_rad_s)
+    np.testing.assert_allclose(pipeline.rotation.gyro_bias.value, state.gyro_bias_rad_s, atol=1e-4)
     dropped = pipeline.counts[RESUME_WAITS]
     assert 2 <= dropped <= 4 and len(after) == capture.num_frames - CUT - GAP - dropped  # every sweep after posed
     shift = np.array([np.linalg.norm(after[t] - whole[t]) for t in sorted(after)])
@@ -113,10 +117,18 @@ def test_a_resume_file_is_checked(tmp_path):
     path.write_text("kind: something else\n", encoding="utf-8")
     with pytest.raises(ValueError, match="is not a"):
         load_resume(path)
-    state = TrajectoryResume(1, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1)
+    state = TrajectoryResume(1, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1,
+                             np.array([1e-3, -2e-3, 3e-3]), 2.5)
     save_resume(state, path)
     loaded = load_resume(path)
     assert loaded.as_dict() == state.as_dict() and np.array_equal(loaded.map_points, state.map_points)
+    doc = yaml.safe_load(path.read_text(encoding="utf-8"))  # a file from before session 52: no gyro bias
+    del doc["gyro_bias_rad_s"], doc["gyro_bias_still_s"]
+    old = TrajectoryResume.from_dict(doc, state.map_points)
+    assert not old.gyro_bias_rad_s.any() and old.gyro_bias_still_s == 0.0
+    with pytest.raises(ValueError, match="gyro bias"):
+        TrajectoryResume(1, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1,
+                         np.array([np.nan, 0.0, 0.0]), 1.0)
     assert len(load_resume(path, with_map=False).map_points) == 0
     points = map_file(path).read_bytes()
     save_resume(TrajectoryResume(7, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1), path)

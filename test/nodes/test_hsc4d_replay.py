@@ -72,6 +72,11 @@ def test_every_sweep_becomes_a_body_pose(replay):
     assert "hip LiDAR's mounting checked at the start: spin: as configured" in stdout, stdout
     assert "; hip: as configured" in stdout, stdout
     assert "body axis, walk's turns vs levelled (deg)" in trajectory.values  # the hand-eye check, or its progress
+    # the pelvis gyro's bias, measured in the A-pose (the rig draws 0.1 deg/s per axis; the estimate's own error is
+    # in test_gyro_bias.py and test_lidar_odometry.py)
+    bias = [float(v) for v in trajectory.values["pelvis gyro bias (deg/s)"].split()]
+    assert len(bias) == 3 and 0.0 < max(map(abs, bias)) < 0.5, trajectory.values
+    assert float(trajectory.values["pelvis gyro bias, still time averaged (s)"]) >= 1.0, trajectory.values
     for name in ("hsc4d_trajectory_node: suit pelvis imu", "hsc4d_body_node: suit left_foot"):  # none lost
         assert int(last[name].values["accepted"]) == 10 * frames_in, last[name]
 

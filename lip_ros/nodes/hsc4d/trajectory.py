@@ -549,6 +549,8 @@ class TrajectoryNode(GraphNode):
             "lever arm in the pelvis frame (m)": " ".join(f"{v:+.3f}" for v in pipe.lever_m),
             "lever arm sigma (m)": " ".join(f"{v:.3f}" for v in pipe.lever.sigma_m),
             "stride scale of the suit": f"{pipe.stride_scale.value:.3f}",
+            "pelvis gyro bias (deg/s)": " ".join(f"{v:+.3f}" for v in np.degrees(pipe.rotation.gyro_bias.value)),
+            "pelvis gyro bias, still time averaged (s)": f"{pipe.rotation.gyro_bias.still_s:.1f}",
             "odometry published": self._published,
             "map points": self.pipeline.site.size,
             "map points not kept (full)": self.pipeline.site.refused,
