@@ -1,24 +1,26 @@
 """The pelvis gyro's bias from the times the wearer stands still, ROS-free.
 
 Where a sweep pins no turn (bare ground, an open field), the LiDAR's heading is
-held to the pelvis IMU's integrated rate, so the gyro's bias turns the whole walk
-(the rig's 0.1 deg/s per axis turned its open field's seed 0 by 1.4 deg in 14 s,
-47 cm off at 28 s). The LiDAR cannot measure that bias there either: its
-registration follows the same integrated rate about the axes the scene leaves
-free (on the rig's open field the LiDAR-referenced estimate of the vertical axis
-read about 0 against a true 0.06-0.16 deg/s). Standing still, the rate the gyro
-reads is its bias, which is what a zero-velocity detector estimates in pedestrian
-navigation: every capture starts with the still A-pose.
+held to the pelvis IMU's integrated rate, so the gyro's bias turns the whole
+walk (the rig's 0.1 deg/s per axis turned its open field's seed 0 by 1.4 deg in
+14 s; with the rig's gyro biases set to zero 0.2 deg, and its error at 28 s
+47 -> 38 cm). The LiDAR cannot measure that bias there either: its registration
+follows the same integrated rate about the axes the scene leaves free (on the
+rig's open field the LiDAR-referenced estimate about the pelvis's vertical axis
+read 0.001-0.035 against a true 0.06-0.16 deg/s). Standing still, the rate the
+gyro reads is its bias, which is what a zero-velocity detector estimates in
+pedestrian navigation: every capture starts with the still A-pose.
 
 :class:`GyroBias` takes the pelvis samples as they arrive and averages the gyro
 over every run of samples that read still (the rate under ``max_rate_rad_s`` and
 the specific force within ``max_accel_mps2`` of gravity) for at least
-``min_still_s``, less ``trim_s`` at both ends of each run (the onset of motion
-reads still for a few samples). A wearer who turns by an angle a during a run of
-T seconds moves the estimate by a / T: standing in an A-pose, a person's pelvis
-yaws by hundredths of a degree, a few thousandths of a deg/s over a 2 s pose.
-The bias's own drift (the DOT's in-run stability is about 10 deg/h) is too slow
-to matter over a capture, so the runs are pooled.
+``min_still_s`` once ``trim_s`` is left out at both ends of the run (the onset
+of motion reads still for a few samples). A wearer who turns by an angle a
+during a run of T seconds moves the estimate by a / T; how far a person holding
+an A-pose turns the pelvis is not measured here (the rig's A-pose is perfectly
+still). The bias's own drift (the DOT's in-run stability is about 10 deg/h) is
+too slow to matter over a capture, so the runs are pooled, each weighted by its
+span.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lip_ros.core.clock import stepped_back
 from lip_ros.core.frames import GRAVITY
 
 __all__ = ["GyroBias", "GyroBiasConfig"]
@@ -82,12 +85,17 @@ class GyroBias:
 
     def start_from(self, bias: np.ndarray, still_s: float) -> None:
         """Take ``bias`` (3,) rad/s, measured over ``still_s`` of still runs before (a restarted process's), as if
-        those runs had been seen here."""
-        self._weighted = np.asarray(bias, dtype=np.float64) * float(still_s)
-        self._seconds = float(still_s)
+        those runs had been seen here too (pooled with any seen already)."""
+        self._weighted = self._weighted + np.asarray(bias, dtype=np.float64) * float(still_s)
+        self._seconds += float(still_s)
 
     def add(self, stamp_ns: int, gyro: np.ndarray, accel: np.ndarray) -> None:
-        """One sample (its gyro, rad/s, and specific force, m/s^2); one out of time order is left out."""
+        """One sample (its gyro, rad/s, and specific force, m/s^2); one out of time order is left out, one far
+        behind the last (a clock step back, :func:`lip_ros.core.clock.stepped_back`) ends the run and starts the
+        time line again."""
+        if stepped_back(stamp_ns, self._last_ns):
+            self._end_run()
+            self._last_ns = None
         if self._last_ns is not None and stamp_ns <= self._last_ns:
             return
         c = self.config

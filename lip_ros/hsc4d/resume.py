@@ -71,9 +71,9 @@ class TrajectoryResume:
             raise ValueError(f"stride scale {self.stride_scale} (> 0) or pelvis height {self.pelvis_height_m} not "
                              "valid")
         bias = np.asarray(self.gyro_bias_rad_s, dtype=np.float64)
-        if bias.shape != (3,) or not np.isfinite(bias).all() or not self.gyro_bias_still_s >= 0.0:
+        if bias.shape != (3,) or not np.isfinite(bias).all() or not 0.0 <= self.gyro_bias_still_s < np.inf:
             raise ValueError(f"gyro bias {bias.tolist()} (3 finite rad/s) or its still time {self.gyro_bias_still_s} "
-                             "(>= 0 s) not valid")
+                             "(finite, >= 0 s) not valid")
         object.__setattr__(self, "gyro_bias_rad_s", bias)
         points = np.asarray(self.map_points, dtype=np.float32)
         if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():

@@ -68,18 +68,32 @@ def test_the_onset_of_motion_is_trimmed():
     assert errors[0] < 0.015 and errors[1] > 0.05
 
 
-def test_gaps_and_samples_out_of_order_break_no_estimate():
+def test_gaps_samples_out_of_order_and_clock_steps():
     """A gap of 0.2 s in the samples ends a run (what the pelvis did in it is not known), so two still halves of
-    1.1 s each count for nothing; a sample older than the last is left out, not counted as still."""
+    1.1 s each count for nothing; a sample older than the last (by less than a clock step) is left out, and the
+    run goes on across it; a clock step back ends the run and the next one starts from the new time line."""
     bias = GyroBias()
     end = _feed(bias, np.zeros((110, 3)))
     _feed(bias, np.zeros((110, 3)), end + 0.2)
     assert not bias.value.any()
     bias = GyroBias()
     end = _feed(bias, np.zeros((200, 3)))
-    before = bias.value.copy()
-    bias.add(int(0.5e9), np.array([1.0, 1.0, 1.0]), np.array([0.0, GRAVITY, 0.0]))
-    assert np.array_equal(bias.value, before)
+    bias.add(int((end - 0.3) * 1e9), np.array([1.0, 1.0, 1.0]), np.array([0.0, GRAVITY, 0.0]))  # late, moving
+    _feed(bias, np.zeros((150, 3)), end, seed=1)
+    assert bias.still_s == pytest.approx(3.0, abs=0.03)  # one run of 3.5 s, trimmed at both ends (two: 2.5)
+    assert np.abs(np.degrees(bias.value - _BIAS)).max() < 0.015
+    _feed(bias, np.zeros((160, 3)), end - 100.0, seed=2)  # the clock stepped back 100 s: a new run
+    assert bias.still_s == pytest.approx(3.0 + 1.1, abs=0.05)
+
+
+def test_a_restarted_process_goes_on_with_the_saved_bias():
+    """The saved estimate is pooled with the runs seen already, each weighted by its still time."""
+    bias = GyroBias()
+    _feed(bias, np.zeros((300, 3)))
+    seen = bias.still_s
+    bias.start_from(np.zeros(3), seen)  # as long, reading zero: the estimate halves
+    assert bias.still_s == pytest.approx(2 * seen)
+    np.testing.assert_allclose(bias.value, _BIAS / 2, atol=np.deg2rad(0.01))
 
 
 def test_a_config_that_cannot_work_is_refused():

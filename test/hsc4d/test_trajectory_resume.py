@@ -100,6 +100,7 @@ def test_a_trajectory_resumed_from_its_file_goes_on_without_another_jump(capture
     # the gyro's bias from the A-pose goes on (the wearer does not stand still after the restart)
     assert state.gyro_bias_still_s >= 1.0 and np.array_equal(loaded.gyro_bias_rad_s, state.gyro_bias_rad_s)
     np.testing.assert_allclose(pipeline.rotation.gyro_bias.value, state.gyro_bias_rad_s, atol=1e-4)
+    assert pipeline.rotation.gyro_bias.still_s >= state.gyro_bias_still_s
     dropped = pipeline.counts[RESUME_WAITS]
     assert 2 <= dropped <= 4 and len(after) == capture.num_frames - CUT - GAP - dropped  # every sweep after posed
     shift = np.array([np.linalg.norm(after[t] - whole[t]) for t in sorted(after)])
@@ -129,6 +130,9 @@ def test_a_resume_file_is_checked(tmp_path):
     with pytest.raises(ValueError, match="gyro bias"):
         TrajectoryResume(1, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1,
                          np.array([np.nan, 0.0, 0.0]), 1.0)
+    with pytest.raises(ValueError, match="gyro bias"):
+        TrajectoryResume(1, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1,
+                         np.zeros(3), np.inf)
     assert len(load_resume(path, with_map=False).map_points) == 0
     points = map_file(path).read_bytes()
     save_resume(TrajectoryResume(7, 2, np.eye(4), np.eye(4), np.eye(4), 1.0, 0.9, 0.0, 0.0, np.ones((5, 3)), 0.1), path)
