@@ -74,12 +74,16 @@ class SiteCaptureConfig:
     # what the site holds besides the ground and the walk's terrace, stairs and ramp (terrain.SCENES): the rig's own
     # "site", or a variant with less for the LiDAR to register on ("sparse": the facades only; "open": nothing)
     scene: str = "site"
+    # a wearer who sways in the A-pose, the pelvis turning about each axis by up to this much (deg; 0: perfectly
+    # still): a variant for the still start the method measures the pelvis gyro's bias on
+    sway_deg: float = 0.0
 
     def __post_init__(self) -> None:
         if (self.columns not in (512, 1024, 2048) or self.rate_hz not in (10.0, 20.0) or self.seconds <= 0
                 or self.beams not in (16, 32, 64, 128) or self.scene not in SCENES
                 or not 0.0 <= self.mount_tilt_up_deg <= 60.0 or not -180.0 <= self.mount_spin_deg <= 180.0
                 or not 20.0 <= self.suit_rate_hz <= 1000.0 or self.suit_noise_scale < 0.0
+                or not 0.0 <= self.sway_deg <= 10.0
                 or (self.body_scale is not None and not 0.5 <= self.body_scale <= 1.5)
                 or (self.mount_lever_m is not None and (len(self.mount_lever_m) != 3
                                                         or not np.isfinite(self.mount_lever_m).all()))):
@@ -123,7 +127,8 @@ class SiteCapture:
     def __post_init__(self) -> None:
         cfg = self.config
         self.terrain = Terrain.random(cfg.seed, cfg.scene)
-        self.motion = make_site_motion(self.terrain, cfg.seconds, cfg.seed, body_scale=cfg.body_scale)
+        self.motion = make_site_motion(self.terrain, cfg.seconds, cfg.seed, body_scale=cfg.body_scale,
+                                       sway_deg=cfg.sway_deg)
         rng = np.random.default_rng([cfg.seed, 300])
         self.body = BodyModel(self.motion.skeleton, girth=float(rng.uniform(0.9, 1.15)))
         lever = {} if cfg.mount_lever_m is None else {"lever_m": np.array(cfg.mount_lever_m, dtype=np.float64)}

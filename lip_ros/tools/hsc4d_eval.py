@@ -28,7 +28,8 @@ reported as lost and left out of the means; the exit status is then 1.
 Rig variants (as ``lip_rig site-bag`` takes them, ``lip_ros.tools.site_variants``): ``--beams N`` (the hip LiDAR's
 beams), ``--mount-tilt-up DEG`` (its true tilt), ``--mount-spin DEG`` (turned about its own axis),
 ``--mount-lever X Y Z`` (its lever arm: the other hip), ``--body-scale X`` (the wearer's size), ``--suit-rate HZ``
-(the suit's rate), ``--suit-noise-scale X`` (the suit's IMU errors X times the rig's); ``--no-check-mount`` turns
+(the suit's rate), ``--suit-noise-scale X`` (the suit's IMU errors X times the rig's), ``--sway DEG`` (the wearer
+sways in the A-pose), ``--scene`` (what the site holds); ``--no-check-mount`` turns
 the method's checks of the mounting at the start off (its spin and its hip), ``--no-check-hip`` only that of the
 hip.
 Held-out seeds: 1000 and up (development used 0-20).

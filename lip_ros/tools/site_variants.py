@@ -37,6 +37,9 @@ def add_site_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--suit-noise-scale", type=float, default=d.suit_noise_scale, metavar="X",
                         help="a rig variant: the suit's IMU errors (noise, biases, tilt and heading errors) X times "
                              "the rig's DOT-like ones")
+    parser.add_argument("--sway", type=float, default=d.sway_deg, metavar="DEG",
+                        help="a rig variant: the wearer sways in the A-pose, the pelvis turning by up to DEG about "
+                             "each axis (the rig's own stands perfectly still)")
     parser.add_argument("--scene", choices=SCENES, default=d.scene,
                         help="a rig variant: what the site holds besides the ground and the walk's terrace, stairs and "
                              "ramp: all the rig's own objects (site), the facades along its edges only (sparse), "
@@ -49,4 +52,4 @@ def site_capture_config(args: argparse.Namespace, seed: int) -> SiteCaptureConfi
                              mount_tilt_up_deg=args.mount_tilt_up, mount_spin_deg=args.mount_spin,
                              mount_lever_m=args.mount_lever and tuple(args.mount_lever), suit_rate_hz=args.suit_rate,
                              suit_noise_scale=args.suit_noise_scale, body_scale=args.body_scale,
-                             scene=args.scene)
+                             scene=args.scene, sway_deg=args.sway)

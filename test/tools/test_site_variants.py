@@ -25,11 +25,11 @@ def test_no_options_are_the_rigs_own_capture_and_each_option_sets_its_variant():
     assert site_capture_config(_parse([]), 3) == SiteCaptureConfig(seed=3)
     args = _parse(["--seconds", "20", "--columns", "512", "--rate", "20", "--beams", "32", "--mount-tilt-up", "15",
                    "--mount-spin", "180", "--mount-lever", "0.15", "0", "-0.1", "--suit-rate", "240",
-                   "--suit-noise-scale", "4", "--body-scale", "1.2", "--scene", "open"])
+                   "--suit-noise-scale", "4", "--body-scale", "1.2", "--scene", "open", "--sway", "0.5"])
     assert site_capture_config(args, 1000) == SiteCaptureConfig(
         seed=1000, seconds=20.0, columns=512, rate_hz=20.0, beams=32, mount_tilt_up_deg=15.0, mount_spin_deg=180.0,
         mount_lever_m=(0.15, 0.0, -0.1), suit_rate_hz=240.0, suit_noise_scale=4.0, body_scale=1.2,
-        scene="open")
+        scene="open", sway_deg=0.5)
 
 
 def test_the_beams_and_size_variants_are_the_hip_lidars_and_the_wearers():
@@ -45,6 +45,6 @@ def test_the_beams_and_size_variants_are_the_hip_lidars_and_the_wearers():
     assert capture.body.skeleton is capture.motion.skeleton
     assert not np.allclose(own.motion.skeleton.offsets, 1.2 * contract)  # the seed's own: 0.9-1.1
     assert SiteCapture(SiteCaptureConfig(seed=0, seconds=14.0, scene="sparse")).terrain.layout["scene"] == "sparse"
-    for bad in ({"beams": 48}, {"body_scale": 1.6}, {"body_scale": 0.4}, {"scene": "forest"}):
+    for bad in ({"beams": 48}, {"body_scale": 1.6}, {"body_scale": 0.4}, {"scene": "forest"}, {"sway_deg": 11.0}):
         with pytest.raises(ValueError):
             SiteCaptureConfig(**bad)

@@ -116,6 +116,32 @@ class _Hold:
     last = first
 
 
+class _SwayingHold(_Hold):
+    """One pose, held by a wearer who sways: the pelvis (and the body with it) turned about the world's x, y and z
+    by ``amplitude_rad`` (3,) times a sine of ``freq_hz`` (3,) from ``phase`` (3,), faded in over the first
+    ``_FADE_S`` (so that it begins as the pose); it ends wherever the sway has got to (:meth:`last`), not turned
+    back."""
+
+    _FADE_S = 0.5
+
+    def __init__(self, duration: float, root: np.ndarray, local: np.ndarray, amplitude_rad: np.ndarray,
+                 freq_hz: np.ndarray, phase: np.ndarray) -> None:
+        super().__init__(duration, root, local)
+        self.amplitude_rad, self.freq_hz, self.phase = amplitude_rad, freq_hz, phase
+
+    def pose(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        root, local = super().pose(tau)
+        fade = smoothstep(np.clip(tau / self._FADE_S, 0.0, 1.0))[:, None]
+        angles = self.amplitude_rad * np.sin(2.0 * np.pi * self.freq_hz * tau[:, None] + self.phase) * fade
+        local[:, 0] = axis_angle_to_matrix(angles) @ local[:, 0]
+        return root, local
+
+    def last(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pose at the end."""
+        root, local = self.pose(np.array([self.duration]))
+        return root[0], local[0]
+
+
 @dataclass
 class _Gap:
     """A transition still to be made: a blend from the pose before it to the pose after it."""
@@ -343,13 +369,25 @@ def make_motion(
     return PerformerMotion(rig.skeleton, scenario, pieces, lidar_height, centre_xy, area.radius)
 
 
+def _a_pose_hold(duration: float, root: np.ndarray, local: np.ndarray, sway_deg: float,
+                 rng: np.random.Generator) -> _Hold:
+    """The A-pose held perfectly still, or swaying by up to ``sway_deg`` about each axis (:class:`_SwayingHold`)."""
+    if sway_deg <= 0.0:
+        return _Hold(duration, root, local)
+    return _SwayingHold(duration, root, local, np.deg2rad(sway_deg) * rng.uniform(0.5, 1.0, 3),
+                        rng.uniform(0.2, 0.5, 3), rng.uniform(0.0, 2.0 * np.pi, 3))
+
+
 def make_site_motion(
-    terrain: Terrain, duration_s: float, seed: int, body_scale: float | None = None, skeleton: Skeleton | None = None
+    terrain: Terrain, duration_s: float, seed: int, body_scale: float | None = None, skeleton: Skeleton | None = None,
+    sway_deg: float = 0.0,
 ) -> PerformerMotion:
     """A performer who carries the sensors through a site (the HSC4D capture), in the world frame W of
     ``terrain``: standing still in A-pose at the start of the site's route, one vertical jump in place with a
     ballistic flight (the sync event), then walking the route over the terrain (stairs, ramp) for the rest
-    of ``duration_s``. Phases: ``a_pose``, ``jump``, ``walk`` (and the transitions between them)."""
+    of ``duration_s``. Phases: ``a_pose``, ``jump``, ``walk`` (and the transitions between them). ``sway_deg``
+    > 0: a wearer who sways in the A-pose instead of standing perfectly still, the pelvis turning about each
+    world axis by up to that much at 0.2-0.5 Hz (a variant; the seed's other draws are unchanged)."""
     rng = np.random.default_rng([seed, 0])
     scale = float(rng.uniform(0.9, 1.1)) if body_scale is None else float(body_scale)
     rig = BodyRig((skeleton or load_skeleton()).scaled(scale))
@@ -362,7 +400,8 @@ def make_site_motion(
     a_pose[0] = rot_z(anchor.heading) @ R_L_M_FACING_X
     ground = float(terrain.surface_height(start[None])[0])
     plan: list[tuple[str, _Piece | _Gap]] = [
-        ("a_pose", _Hold(rng.uniform(2.3, 3.0), np.array([*start, rig.stand_height + ground]), a_pose)),
+        ("a_pose", _a_pose_hold(rng.uniform(2.3, 3.0), np.array([*start, rig.stand_height + ground]), a_pose,
+                                sway_deg, np.random.default_rng([seed, 3]))),
         ("to_jump", _Gap(rng.uniform(0.6, 1.0))),
         ("jump", _Play(build_sync_jump(rig, style, rng, anchor), rig)),
         ("to_walk", _Gap(rng.uniform(0.3, 0.6))),
