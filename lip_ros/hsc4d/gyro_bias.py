@@ -17,10 +17,11 @@ the specific force within ``max_accel_mps2`` of gravity) for at least
 ``min_still_s`` once ``trim_s`` is left out at both ends of the run (the onset
 of motion reads still for a few samples). A wearer who turns by an angle a
 during a run of T seconds moves the estimate by a / T; how far a person holding
-an A-pose turns the pelvis is not measured here (the rig's A-pose is perfectly
-still). The bias's own drift (the DOT's in-run stability is about 10 deg/h) is
-too slow to matter over a capture, so the runs are pooled, each weighted by its
-span.
+an A-pose turns the pelvis is not measured here (the rig's own A-pose is
+perfectly still; its ``sway_deg`` variant sways it: 0.3 deg read as 0.043
+deg/s of bias, docs/hsc4d/trajectory.md "The pelvis gyro's bias"). The bias's
+own drift (the DOT's in-run stability is about 10 deg/h) is too slow to matter
+over a capture, so the runs are pooled, each weighted by its span.
 """
 
 from __future__ import annotations

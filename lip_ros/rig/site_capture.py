@@ -74,8 +74,9 @@ class SiteCaptureConfig:
     # what the site holds besides the ground and the walk's terrace, stairs and ramp (terrain.SCENES): the rig's own
     # "site", or a variant with less for the LiDAR to register on ("sparse": the facades only; "open": nothing)
     scene: str = "site"
-    # a wearer who sways in the A-pose, the pelvis turning about each axis by up to this much (deg; 0: perfectly
-    # still): a variant for the still start the method measures the pelvis gyro's bias on
+    # a wearer who sways in the A-pose, the body turning about each axis through the ground between the feet by up
+    # to this much (deg, at most 3; 0: perfectly still): a variant for the still start the method measures the
+    # pelvis gyro's bias on
     sway_deg: float = 0.0
 
     def __post_init__(self) -> None:
@@ -83,7 +84,7 @@ class SiteCaptureConfig:
                 or self.beams not in (16, 32, 64, 128) or self.scene not in SCENES
                 or not 0.0 <= self.mount_tilt_up_deg <= 60.0 or not -180.0 <= self.mount_spin_deg <= 180.0
                 or not 20.0 <= self.suit_rate_hz <= 1000.0 or self.suit_noise_scale < 0.0
-                or not 0.0 <= self.sway_deg <= 10.0
+                or not 0.0 <= self.sway_deg <= 3.0
                 or (self.body_scale is not None and not 0.5 <= self.body_scale <= 1.5)
                 or (self.mount_lever_m is not None and (len(self.mount_lever_m) != 3
                                                         or not np.isfinite(self.mount_lever_m).all()))):

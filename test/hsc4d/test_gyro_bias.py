@@ -105,29 +105,31 @@ def test_a_config_that_cannot_work_is_refused():
         GyroBiasConfig(trim_s=-0.1)
 
 
-@pytest.mark.parametrize(("sway_deg", "bound_deg_s"), [(0.0, 0.01), (0.3, 0.05), (1.0, 0.02)])
-def test_on_rig_captures_of_a_wearer_who_sways(sway_deg: float, bound_deg_s: float):
-    """The rig's suit (bias 0.1 deg/s per axis), 15 s captures of seeds 0 3 11: from the still A-pose the estimate
-    is within 0.01 deg/s of the bias on every axis (measured 0.005); a wearer swaying by up to 0.3 deg about each
-    axis (rates up to 1.35 deg/s, under the still threshold) moves it by the sway's turn over the runs, within
-    0.05 (measured 0.036); swaying by up to 1 deg (rates up to 4.5 deg/s) the A-pose does not count, and the stand
-    after the landing gives it within 0.02 (measured 0.013), from 1.4-1.7 s of still time."""
-    worst = 0.0
+@pytest.mark.parametrize(("sway_deg", "bound_deg_s", "still_s"), [(0.0, 0.01, (3.5, 6.0)), (0.3, 0.06, (3.5, 6.0)),
+                                                                 (1.0, 0.02, (1.0, 2.0))])
+def test_on_rig_captures_of_a_wearer_who_sways(sway_deg: float, bound_deg_s: float, still_s: tuple[float, float]):
+    """The rig's suit (bias 0.1 deg/s per axis), 15 s captures of seeds 0 3 11 on the rig's site: from the still
+    A-pose and the stand after the landing (4.1-4.9 s of still time) the estimate is within 0.01 deg/s of the bias
+    on every axis (measured 0.005); a wearer swaying by up to 0.3 deg about each axis (rates up to 1.35 deg/s,
+    under the still threshold) is still all through the A-pose, and the sway's turn over it is read as bias,
+    within 0.06 (measured 0.043); swaying by up to 1 deg (rates up to 4.5 deg/s) the A-pose does not count
+    (1-2 s of still time: the stand after the landing), which gives it within 0.02 (measured 0.011)."""
+    worst = peak = 0.0
     for seed in (0, 3, 11):
         capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=15.0, sway_deg=sway_deg))
         stream = capture.suit_streams()["pelvis"]
-        R = stream.R_L_B_true
+        R = stream.R_L_B_true  # the suit's sensors sit square on their segments (the rig's suit: no mounting turn)
         true_rate = matrix_to_axis_angle(np.einsum("nba,nbc->nac", R[:-1], R[1:])) / np.diff(stream.t_true)[:, None]
         _, start_ns, end_ns = next(p for p in capture.phases_ns() if p[0] == "a_pose")
         t = stream.t_true[:-1]
         a_pose = (t >= (start_ns - capture.epoch_ns) * 1e-9) & (t <= (end_ns - capture.epoch_ns) * 1e-9)
         true_bias = (stream.gyro[:-1] - true_rate)[a_pose].mean(axis=0)
+        peak = max(peak, float(np.degrees(np.linalg.norm(true_rate[a_pose], axis=1)).max()))
         bias = GyroBias()
         for sample in stream.samples("mocap_pelvis"):
             bias.add(int(sample.stamp_ns), np.asarray(sample.gyro), np.asarray(sample.accel))
-        assert bias.still_s >= 1.0
+        assert still_s[0] <= bias.still_s <= still_s[1], bias.still_s
         worst = max(worst, float(np.abs(np.degrees(bias.value - true_bias)).max()))
-    print(f"sway {sway_deg} deg: worst axis {worst:.3f} deg/s")
+    print(f"sway {sway_deg} deg: worst axis {worst:.3f} deg/s, peak rate in the A-pose {peak:.2f} deg/s")
     assert worst < bound_deg_s
-    with pytest.raises(ValueError):
-        SiteCaptureConfig(sway_deg=-sway_deg - 1.0)
+    assert (peak > 0.5 * sway_deg) if sway_deg else peak < 1e-6  # the sway is there, and only where asked

@@ -45,6 +45,7 @@ def test_the_beams_and_size_variants_are_the_hip_lidars_and_the_wearers():
     assert capture.body.skeleton is capture.motion.skeleton
     assert not np.allclose(own.motion.skeleton.offsets, 1.2 * contract)  # the seed's own: 0.9-1.1
     assert SiteCapture(SiteCaptureConfig(seed=0, seconds=14.0, scene="sparse")).terrain.layout["scene"] == "sparse"
-    for bad in ({"beams": 48}, {"body_scale": 1.6}, {"body_scale": 0.4}, {"scene": "forest"}, {"sway_deg": 11.0}):
+    for bad in ({"beams": 48}, {"body_scale": 1.6}, {"body_scale": 0.4}, {"scene": "forest"}, {"sway_deg": 3.5},
+                {"sway_deg": -0.1}):
         with pytest.raises(ValueError):
             SiteCaptureConfig(**bad)

@@ -117,23 +117,30 @@ class _Hold:
 
 
 class _SwayingHold(_Hold):
-    """One pose, held by a wearer who sways: the pelvis (and the body with it) turned about the world's x, y and z
-    by ``amplitude_rad`` (3,) times a sine of ``freq_hz`` (3,) from ``phase`` (3,), faded in over the first
-    ``_FADE_S`` (so that it begins as the pose); it ends wherever the sway has got to (:meth:`last`), not turned
-    back."""
+    """One pose, held by a wearer who sways: the body turned about the world's x, y and z through ``pivot`` (3,),
+    a point on the ground between the feet (so that the feet stay put and the pelvis moves, as a sway about the
+    ankles), by ``amplitude_rad`` (3,) times a sine of ``freq_hz`` (3,) from ``phase`` (3,). The sway fades in
+    over the first ``_EASE_S`` (it begins as the pose, at rest) and slows to rest over the last ``_EASE_S`` where
+    it has got to (:meth:`last`), not turned back, so that the rates are continuous into what follows."""
 
-    _FADE_S = 0.5
+    _EASE_S = 0.5
 
-    def __init__(self, duration: float, root: np.ndarray, local: np.ndarray, amplitude_rad: np.ndarray,
-                 freq_hz: np.ndarray, phase: np.ndarray) -> None:
+    def __init__(self, duration: float, root: np.ndarray, local: np.ndarray, pivot: np.ndarray,
+                 amplitude_rad: np.ndarray, freq_hz: np.ndarray, phase: np.ndarray) -> None:
         super().__init__(duration, root, local)
-        self.amplitude_rad, self.freq_hz, self.phase = amplitude_rad, freq_hz, phase
+        self.pivot, self.amplitude_rad, self.freq_hz, self.phase = pivot, amplitude_rad, freq_hz, phase
 
     def pose(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         root, local = super().pose(tau)
-        fade = smoothstep(np.clip(tau / self._FADE_S, 0.0, 1.0))[:, None]
-        angles = self.amplitude_rad * np.sin(2.0 * np.pi * self.freq_hz * tau[:, None] + self.phase) * fade
-        local[:, 0] = axis_angle_to_matrix(angles) @ local[:, 0]
+        ease = self._EASE_S
+        fade = smoothstep(tau / ease)[:, None]
+        # the sway's own clock, slowing to a stop at the end: d(clock)/d(tau) = 1 - smoothstep over the last ease
+        u = np.clip((tau - (self.duration - ease)) / ease, 0.0, 1.0)
+        clock = np.minimum(tau, self.duration - ease) + ease * (u - 2.5 * u**4 + 3.0 * u**5 - u**6)
+        angles = self.amplitude_rad * np.sin(2.0 * np.pi * self.freq_hz * clock[:, None] + self.phase) * fade
+        turn = axis_angle_to_matrix(angles)
+        local[:, 0] = turn @ local[:, 0]
+        root = self.pivot + np.einsum("nab,nb->na", turn, root - self.pivot)
         return root, local
 
     def last(self) -> tuple[np.ndarray, np.ndarray]:
@@ -369,12 +376,14 @@ def make_motion(
     return PerformerMotion(rig.skeleton, scenario, pieces, lidar_height, centre_xy, area.radius)
 
 
-def _a_pose_hold(duration: float, root: np.ndarray, local: np.ndarray, sway_deg: float,
+def _a_pose_hold(duration: float, root: np.ndarray, local: np.ndarray, ground: float, sway_deg: float,
                  rng: np.random.Generator) -> _Hold:
-    """The A-pose held perfectly still, or swaying by up to ``sway_deg`` about each axis (:class:`_SwayingHold`)."""
+    """The A-pose held perfectly still, or swaying by up to ``sway_deg`` about each axis through the ground at
+    ``ground`` under the pelvis (:class:`_SwayingHold`)."""
     if sway_deg <= 0.0:
         return _Hold(duration, root, local)
-    return _SwayingHold(duration, root, local, np.deg2rad(sway_deg) * rng.uniform(0.5, 1.0, 3),
+    pivot = np.array([root[0], root[1], ground])
+    return _SwayingHold(duration, root, local, pivot, np.deg2rad(sway_deg) * rng.uniform(0.5, 1.0, 3),
                         rng.uniform(0.2, 0.5, 3), rng.uniform(0.0, 2.0 * np.pi, 3))
 
 
@@ -386,8 +395,9 @@ def make_site_motion(
     ``terrain``: standing still in A-pose at the start of the site's route, one vertical jump in place with a
     ballistic flight (the sync event), then walking the route over the terrain (stairs, ramp) for the rest
     of ``duration_s``. Phases: ``a_pose``, ``jump``, ``walk`` (and the transitions between them). ``sway_deg``
-    > 0: a wearer who sways in the A-pose instead of standing perfectly still, the pelvis turning about each
-    world axis by up to that much at 0.2-0.5 Hz (a variant; the seed's other draws are unchanged)."""
+    > 0: a wearer who sways in the A-pose instead of standing perfectly still, the body turning about each world
+    axis through the ground between the feet by up to that much at 0.2-0.5 Hz (a variant; the seed's other draws
+    are unchanged)."""
     rng = np.random.default_rng([seed, 0])
     scale = float(rng.uniform(0.9, 1.1)) if body_scale is None else float(body_scale)
     rig = BodyRig((skeleton or load_skeleton()).scaled(scale))
@@ -401,7 +411,7 @@ def make_site_motion(
     ground = float(terrain.surface_height(start[None])[0])
     plan: list[tuple[str, _Piece | _Gap]] = [
         ("a_pose", _a_pose_hold(rng.uniform(2.3, 3.0), np.array([*start, rig.stand_height + ground]), a_pose,
-                                sway_deg, np.random.default_rng([seed, 3]))),
+                                ground, sway_deg, np.random.default_rng([seed, 3]))),
         ("to_jump", _Gap(rng.uniform(0.6, 1.0))),
         ("jump", _Play(build_sync_jump(rig, style, rng, anchor), rig)),
         ("to_walk", _Gap(rng.uniform(0.3, 0.6))),
