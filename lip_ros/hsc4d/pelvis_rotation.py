@@ -10,8 +10,8 @@ IMU's angular rate integrated, which the orientation output's own errors do not
 reach (the rate taken in the frame whose orientation the message gives, as
 REP 145 has sensor_msgs/Imu: a driver that reports the segment's orientation
 must report the rate in the segment's frame too), less the gyro's bias
-measured while the wearer stands still (:class:`lip_ros.hsc4d.gyro_bias.GyroBias`). The suit's samples are
-stamped on its own clock: they are used once the offset is known
+measured while the wearer stands still (:class:`lip_ros.hsc4d.gyro_bias.GyroBias`).
+The suit's samples are stamped on its own clock: they are used once the offset is known
 (:meth:`PelvisRotation.set_offset`, from the jump), from a bounded buffer
 (:class:`lip_ros.core.imu_sync.ImuSynchronizer`).
 """
