@@ -12,13 +12,12 @@ gyro reads is its bias, which is what a zero-velocity detector estimates in
 pedestrian navigation: every capture starts with the still A-pose.
 
 :class:`GyroBias` takes the pelvis samples as they arrive and averages the gyro
-over every run of samples that read still (the rate under ``max_rate_rad_s`` and
-the specific force within ``max_accel_mps2`` of gravity) for at least
-``min_still_s`` once ``trim_s`` is left out at both ends of the run (the onset
-of motion reads still for a few samples). A wearer who turns by an angle a
+over every run of samples that read still (the rate under ``max_rate_rad_s``)
+for at least ``min_still_s`` once ``trim_s`` is left out at both ends of the
+run (the onset of motion reads still for a few samples). A wearer who turns by an angle a
 during a run of T seconds moves the estimate by a / T; how far a person holding
 an A-pose turns the pelvis is not measured here (the rig's own A-pose is
-perfectly still; its ``sway_deg`` variant sways it: 0.3 deg read as 0.043
+perfectly still; its ``sway_deg`` variant sways it: 0.3 deg read as 0.042
 deg/s of bias, docs/hsc4d/trajectory.md "The pelvis gyro's bias"). The bias's
 own drift (the DOT's in-run stability is about 10 deg/h) is too slow to matter
 over a capture, so the runs are pooled, each weighted by its span.
@@ -32,7 +31,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from lip_ros.core.clock import stepped_back
-from lip_ros.core.frames import GRAVITY
 
 __all__ = ["GyroBias", "GyroBiasConfig"]
 
@@ -42,12 +40,11 @@ class GyroBiasConfig:
     """When the pelvis IMU reads still, and for how long it must, to measure its gyro's bias."""
 
     max_rate_rad_s: float = 0.03  # 1.7 deg/s: a biased still gyro reads tenths; a walking pelvis tens of deg/s
-    max_accel_mps2: float = 0.3  # |specific force| - gravity
     min_still_s: float = 1.0  # a still run counts once it is this long (trimmed)
     trim_s: float = 0.25  # left out at both ends of each still run
 
     def __post_init__(self) -> None:
-        if not (self.max_rate_rad_s > 0.0 and self.max_accel_mps2 > 0.0 and self.min_still_s > 0.0
+        if not (self.max_rate_rad_s > 0.0 and self.min_still_s > 0.0
                 and self.trim_s >= 0.0):
             raise ValueError(f"invalid {self}")
 
@@ -90,8 +87,10 @@ class GyroBias:
         self._weighted = self._weighted + np.asarray(bias, dtype=np.float64) * float(still_s)
         self._seconds += float(still_s)
 
-    def add(self, stamp_ns: int, gyro: np.ndarray, accel: np.ndarray) -> None:
-        """One sample (its gyro, rad/s, and specific force, m/s^2); one out of time order is left out, one far
+    def add(self, stamp_ns: int, gyro: np.ndarray) -> None:
+        """One sample's gyro (rad/s); only the rate tells stillness here (the bias needs the pelvis not turning, a
+        steady glide does no harm), so no accelerometer scale or local gravity enters. One out of time order is
+        left out, one far
         behind the last (a clock step back, :func:`lip_ros.core.clock.stepped_back`) ends the run and starts the
         time line again."""
         if stepped_back(stamp_ns, self._last_ns):
@@ -102,8 +101,7 @@ class GyroBias:
         c = self.config
         gap = self._last_ns is not None and stamp_ns - self._last_ns > self.max_gap_ns
         self._last_ns = stamp_ns
-        still = (float(np.linalg.norm(gyro)) < c.max_rate_rad_s
-                 and abs(float(np.linalg.norm(accel)) - GRAVITY) < c.max_accel_mps2)
+        still = float(np.linalg.norm(gyro)) < c.max_rate_rad_s
         if gap or not still:
             self._end_run()
         if not still:

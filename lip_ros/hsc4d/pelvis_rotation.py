@@ -52,8 +52,7 @@ class PelvisRotation:
         """One pelvis sample (stamped on the suit's clock); why it was rejected, None if kept."""
         reason = self._sync.add(_PELVIS, sample)
         if reason is None:
-            self.gyro_bias.add(int(sample.stamp_ns), np.asarray(sample.gyro, dtype=np.float64),
-                               np.asarray(sample.accel, dtype=np.float64))
+            self.gyro_bias.add(int(sample.stamp_ns), np.asarray(sample.gyro, dtype=np.float64))
         return reason
 
     def rotation_of_lidar(self, t_ns: np.ndarray) -> np.ndarray:
