@@ -13,12 +13,19 @@ odometry: S_live). :meth:`CaptureRefiner.refine` then
 
 1. solves the whole capture's graph at once (:meth:`TrajectoryPipeline.refine`);
 2. optimises it window by window with the scene
-   (:func:`~lip_ros.hsc4d.scene_optimisation.optimise_sequence`) on the site
-   map rebuilt from the graph's trajectory (as in 3.);
+   (:func:`~lip_ros.hsc4d.scene_optimisation.optimise_sequence`), each window
+   on the site map as it stood when the window's last sweep was kept, as the
+   live optimisation has it (a *view*: kept every window, the points near the
+   path of the windows that may still wait for it), each point moved with its
+   sweep to the graph's trajectory (as in 3.). Not on the final map: a voxel's
+   nearest sighting may come from a later visit, placed by that time's pose
+   error, and the contact term then moved the feet by the difference
+   (docs/hsc4d/optimisation.md "The map each window stands on");
 3. rebuilds the map from the refined trajectory (S_opt: each point moved by the
    shift of the sweep that placed it, :func:`sweep_shifts`, :meth:`SiteMap.moved`).
 
-Memory: about 4 KB per sweep (the bodies) and 20 B per map point, for the
+Memory: about 4 KB per sweep (the bodies), 20 B per map point and the views
+(20 B per point near the path, a few tens of thousands per window), for the
 whole capture (``TrajectoryConfig.record_s`` bounds the graph's record).
 """
 
@@ -32,11 +39,16 @@ import numpy as np
 
 from lip_ros.core.imu_sync import ImuSampleLike
 from lip_ros.core.skeleton import load_skeleton
-from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, optimise_sequence
+from lip_ros.hsc4d.scene_optimisation import MAX_WAIT_WINDOWS, SceneOptimisationConfig, optimise_sequence
+from lip_ros.hsc4d.site_map import SiteMap
 from lip_ros.hsc4d.suit_body import FEET, BodyPose, SuitBody, SuitBodyConfig, bent_legs, leg_chains, moved_body
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 
-__all__ = ["RefinementConfig", "LiveRecord", "Refinement", "CaptureRefiner", "sweep_shifts"]
+__all__ = ["RefinementConfig", "LiveRecord", "Refinement", "MapViews", "CaptureRefiner", "sweep_shifts"]
+
+#: how far (m, horizontally) beyond a window's search radius round a foot a view keeps the map round the pelvis
+#: path: the feet stand within a stride of the pelvis, and the refined pelvis is centimetres from the live one
+FOOT_REACH_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -83,6 +95,40 @@ class Refinement:
     seconds: float
 
 
+class MapViews:
+    """The site map as it stood at chosen steps, each view only near the pelvis path given with it (the map each
+    optimisation window stands on, module docstring)."""
+
+    def __init__(self, radius_m: float) -> None:
+        self.radius_m = radius_m  #: a view keeps the points within this horizontal distance of its path
+        self._views: list[tuple[int, np.ndarray, np.ndarray]] = []  # (step, points, the sweep of each)
+
+    @property
+    def newest(self) -> int | None:
+        """The step of the newest view (None: none yet)."""
+        return self._views[-1][0] if self._views else None
+
+    @property
+    def points(self) -> int:
+        """The points kept, in all views."""
+        return sum(len(v[1]) for v in self._views)
+
+    def add(self, step: int, site: SiteMap, path_xy: np.ndarray) -> None:
+        """Keep ``site`` as it stands at ``step`` (later than the newest view's), near the positions ``path_xy``
+        (P, 2) in ``map``."""
+        if self._views and step <= self._views[-1][0]:
+            raise ValueError(f"views are kept in step order: {step} after {self._views[-1][0]}")
+        self._views.append((step, *site.near(path_xy, self.radius_m)))
+
+    def at(self, step: int, shifts: np.ndarray) -> np.ndarray:
+        """(M, 3) the first view kept at ``step`` or later, each point moved by its sweep's shift (K, 3);
+        LookupError if none is that late."""
+        for newest, points, sweeps in self._views:
+            if newest >= step:
+                return points + shifts[sweeps]
+        raise LookupError(f"no view of the map at step {step} or later (newest: {self.newest})")
+
+
 def _stack(poses: list[BodyPose]) -> BodyPose:
     return BodyPose(*(np.array([getattr(p, f) for p in poses]) for f in ("local_rot", "glob_rot", "joints")))
 
@@ -100,6 +146,7 @@ class CaptureRefiner:
         self._mapped: list[int] = []  # each step's index in the pipeline's site map
         self._bodies: list[BodyPose] = []
         self._suit: list[tuple[np.ndarray, np.ndarray]] = []  # the suit's pelvis pose and joints
+        self.views = MapViews(c.scene.radius_m + FOOT_REACH_M)  #: the map each window stands on
         self._scaled = False
 
     def add_suit_imu(self, segment: str, samples: list[ImuSampleLike]) -> list[str | None]:
@@ -141,6 +188,13 @@ class CaptureRefiner:
         self._steps.append((step.stamp_ns, step.sweep_ns, step.pelvis, step.lidar, step.lidar_pelvis, step.rejected))
         self._bodies.append(body)
         self._suit.append((T_suit, suit.joints))
+        if len(self._steps) % self.config.scene.window == 0:
+            self._view()
+
+    def _view(self) -> None:
+        """Keep the site map as it stands now near the path of the steps a window may still be waiting with."""
+        path = np.array([s[2][:2, 3] for s in self._steps[-MAX_WAIT_WINDOWS * self.config.scene.window:]])
+        self.views.add(len(self._steps) - 1, self.pipeline.site, path)
 
     @property
     def record(self) -> LiveRecord:
@@ -167,22 +221,31 @@ class CaptureRefiner:
             raise ValueError("the graph's record lacks sweeps posed live (TrajectoryConfig.record_s shorter than "
                              "the capture?)")
         graph = all_graph[k]
-        graph_map = self._shifted(live, graph)  # the feet meet the ground as their own trajectory puts it
+        if self.views.newest != len(self._steps) - 1:
+            self._view()  # the last window's
+        shifts = self._shifts(live, graph)  # the feet meet the ground as their own trajectory puts it
         t_s = (live.stamps_ns - live.stamps_ns[0]) * 1e-9
         skeleton = self.body.skeleton
         t0 = time.perf_counter()
         result = optimise_sequence(t_s, graph, *leg_chains(skeleton, live.body.local_rot), live.suit_pelvis[:, :3, 3],
-                                   live.suit_joints[:, self._feet], lambda _: graph_map, scene or self.config.scene,
-                                   sole_m)
+                                   live.suit_joints[:, self._feet], lambda step: self.views.at(step, shifts),
+                                   scene or self.config.scene, sole_m)
         window_s = np.full(len(result.windows), (time.perf_counter() - t0) / max(len(result.windows), 1))
         body = bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton, result.legs)
         return Refinement(live.stamps_ns, graph, result.pelvis, body, self._shifted(live, result.pelvis),
                           result.sole_m, window_s, time.perf_counter() - start)
 
+    def _shifts(self, live: LiveRecord, to: np.ndarray) -> np.ndarray:
+        """(K, 3) how far each sweep in the site map moves for the pelvis trajectory ``to`` (N, 4, 4)
+        (:func:`sweep_shifts`); the sweeps of steps not kept stay where they are."""
+        shifts = np.zeros((self.pipeline.mapped, 3))
+        shifts[self._mapped] = sweep_shifts(live.lidar, to, self.pipeline.T_L_M)
+        return shifts
+
     def _shifted(self, live: LiveRecord, to: np.ndarray) -> np.ndarray:
         """(M, 3) the site map rebuilt from the pelvis trajectory ``to`` (N, 4, 4) (:func:`sweep_shifts`)."""
-        corrections = np.tile(np.eye(4), (self.pipeline.mapped, 1, 1))  # steps not kept stay where they are
-        corrections[self._mapped, :3, 3] = sweep_shifts(live.lidar, to, self.pipeline.T_L_M)
+        corrections = np.tile(np.eye(4), (self.pipeline.mapped, 1, 1))
+        corrections[:, :3, 3] = self._shifts(live, to)
         return self.pipeline.site.moved(corrections)
 
 

@@ -43,13 +43,14 @@ from lip_ros.core.torch_kinematics import axis_angle_to_matrix
 
 __all__ = ["SceneOptimisationConfig", "WindowInput", "WindowResult", "TERMS", "stance_from_suit",
            "fit_foot_planes", "leg_offsets", "feet_offsets", "optimise_window", "without", "SequenceResult",
-           "sole_height", "SceneOptimiser", "optimise_sequence"]
+           "sole_height", "SceneOptimiser", "optimise_sequence", "MAX_WAIT_WINDOWS"]
 
 #: the loss terms, in report order
 TERMS = ("contact", "sliding", "orientation", "smoothness", "prior", "pose")
 
 
-_MAX_WAIT_WINDOWS = 4  # the bound on the frames waiting for the first window's ground
+#: the bound on the frames waiting for the first window's ground, in windows
+MAX_WAIT_WINDOWS = 4
 
 
 @dataclass(frozen=True)
@@ -356,7 +357,7 @@ class SceneOptimiser:
         if len(frames) >= 2 and frames[-1][0] > frames[0][0]:
             rate_hz = (len(frames) - 1) / (frames[-1][0] - frames[0][0])
             n = max(n, int(round(c.max_wait_s * rate_hz)))
-        return min(n, _MAX_WAIT_WINDOWS * c.window)
+        return min(n, MAX_WAIT_WINDOWS * c.window)
 
     def add(self, t_s: float, pelvis: np.ndarray, legs: np.ndarray, bones: np.ndarray, suit_pelvis: np.ndarray,
             suit_feet: np.ndarray) -> None:

@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 __all__ = ["SiteMapConfig", "SiteMap"]
 
@@ -136,6 +137,19 @@ class SiteMap:
     def sweeps(self) -> np.ndarray:
         """(M,) the index of the sweep that placed each point."""
         return self._sweep[:self.size].astype(np.int64)
+
+    def near(self, xy: np.ndarray, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """The points within ``radius_m`` horizontally of any of the positions ``xy`` (P, 2) in ``map``: (M, 3)
+        float32 (a copy) and the index of the sweep that placed each (M,)."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        points, sweeps = self._points[:self.size], self._sweep[:self.size]
+        if not len(xy) or not self.size:
+            return np.zeros((0, 3), dtype=np.float32), np.zeros(0, dtype=np.int64)
+        lo, hi = xy.min(axis=0) - radius_m, xy.max(axis=0) + radius_m
+        box = np.flatnonzero(((points[:, :2] >= lo) & (points[:, :2] <= hi)).all(axis=1))
+        distance, _ = cKDTree(xy).query(points[box, :2], distance_upper_bound=radius_m)
+        keep = box[distance <= radius_m]
+        return points[keep].copy(), sweeps[keep].astype(np.int64)
 
     def moved(self, corrections: np.ndarray) -> np.ndarray:
         """(M, 3) float32: each point moved by its sweep's correction T_map'_map (K, 4, 4), indexed by the sweeps'

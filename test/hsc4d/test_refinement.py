@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from lip_ros.core.rotations import rot_x, rot_y, rot_z
-from lip_ros.hsc4d.refinement import sweep_shifts
+from lip_ros.hsc4d.refinement import MapViews, sweep_shifts
+from lip_ros.hsc4d.site_map import SiteMap, SiteMapConfig
 
 
 def _poses(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -40,3 +42,30 @@ def test_each_sweep_moves_to_where_the_refined_pelvis_puts_its_sensor_through_th
     as_registered[:, :3, 3] = refined[:, :3, 3]
     np.testing.assert_allclose(lidar[:, :3, 3] + shifts, (as_registered @ np.linalg.inv(T_L_M))[:, :3, 3],
                                atol=1e-12)
+
+
+def test_each_window_stands_on_the_map_as_it_stood_then_moved_with_its_sweeps():
+    """A voxel seen again later from nearer (a second visit) gets the later sweep's point in the site map; the
+    view kept at the first visit keeps the first sweep's, so a window of the first visit stands on the ground as
+    the sweeps of its own time placed it (the contact term moved the feet by the pose error of the other visit
+    where the final map was used: docs/hsc4d/optimisation.md). A view is the first kept at the step or later, only
+    near its path, each point moved by its own sweep's shift."""
+    site = SiteMap(SiteMapConfig(voxel_m=0.1))
+    views = MapViews(radius_m=1.0)
+    ground = np.array([[5.0, 0.0, 0.0], [20.0, 0.0, 0.0]])  # in the sensor's frame, which stands at the origin
+    site.add(ground, np.eye(4), 0)  # the first visit sees the patch at x = 5 m from 5 m
+    views.add(99, site, np.array([[4.5, 0.0], [5.0, 0.0]]))
+    later = np.eye(4)
+    later[:3, 3] = [4.0, 0.0, 0.01]  # the second visit, 1 m away, placed 1 cm higher
+    site.add(ground[:1] - [4.0, 0.0, 0.0], later, 1)
+    views.add(199, site, np.array([[5.0, 0.0]]))
+    assert site.replaced == 1 and np.allclose(site.points()[site.sweeps() == 1], [5.0, 0.0, 0.01], atol=1e-6)
+    shifts = np.array([[0.0, 0.0, 0.002], [0.0, 0.0, -0.01]])
+    for step in (0, 99):
+        np.testing.assert_allclose(views.at(step, shifts), [[5.0, 0.0, 0.002]], atol=1e-6)  # far point left out
+    np.testing.assert_allclose(views.at(100, shifts), [[5.0, 0.0, 0.0]], atol=1e-6)
+    assert views.newest == 199 and views.points == 2
+    with pytest.raises(LookupError):
+        views.at(200, shifts)
+    with pytest.raises(ValueError):
+        views.add(199, site, np.zeros((1, 2)))

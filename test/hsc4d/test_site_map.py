@@ -93,3 +93,21 @@ def test_moved_puts_each_point_where_its_own_sweep_went():
     at_first = _pose(0.0, tuple(cloud[0] - [8.5, 0.0, 0.0]))  # a merged voxel seen from nearer: its point replaced
     assert many.add(cloud[:1] - at_first[:3, 3], at_first, 2) == 0 and many.size == before and many.replaced == 1
     assert np.allclose(many.points()[many.sweeps() == 2], cloud[:1], atol=1e-5)
+
+
+def test_near_keeps_the_points_within_the_radius_of_a_path_with_their_sweeps():
+    site = SiteMap(SiteMapConfig(voxel_m=0.05))
+    rng = np.random.default_rng(2)
+    clouds = [rng.uniform(-10.0, 10.0, (2000, 3)) for _ in range(3)]
+    for k, cloud in enumerate(clouds):
+        site.add(cloud, np.eye(4), k)
+    path = np.array([[0.0, 0.0], [3.0, 1.0], [3.5, 4.0]])
+    points, sweeps = site.near(path, 1.2)
+    everything, all_sweeps = site.points(), site.sweeps()
+    distance = np.min(np.linalg.norm(everything[:, None, :2] - path[None], axis=2), axis=1)
+    inside = distance <= 1.2
+    assert 0 < inside.sum() < len(everything) and len(points) == inside.sum()
+    assert {tuple(p) for p in points} == {tuple(p) for p in everything[inside]}
+    order, expected = np.lexsort(points.T), np.lexsort(everything[inside].T)
+    np.testing.assert_array_equal(sweeps[order], all_sweeps[inside][expected])
+    assert site.near(np.zeros((0, 2)), 1.0)[0].shape == (0, 3) and SiteMap().near(path, 1.0)[1].shape == (0,)
