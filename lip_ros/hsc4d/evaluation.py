@@ -21,7 +21,7 @@ sent before then) and collects, per sweep the pipeline output, the pelvis of
   window's last sweep came out,
 * the offline refinement (:mod:`~lip_ros.hsc4d.refinement`): the **refined
   graph** (the whole capture's graph solved at once) and the **refined**
-  trajectory (that graph optimised on the whole site's map), also with each
+  trajectory (that graph optimised, each window on the site's map as it stood then), also with each
   loss term left out in turn (the ablation),
 
 and the truth. :func:`trajectory_metrics` aligns each with yaw and translation

@@ -24,7 +24,7 @@ height over time against the truth and the suit's own odometry, and the map
 
 HSC4D only: ``--refine`` then also runs the offline refinement on IN
 (:mod:`lip_ros.hsc4d.refinement`: the whole capture's pose graph, the
-scene-aware optimisation on the whole site's map, the map rebuilt from the
+scene-aware optimisation on the site's map as each window saw it, the map rebuilt from the
 refined trajectory) and records it beside OUT as the bag ``OUT_refined``:
 ``/hsc4d/refined/odometry``, ``/hsc4d/refined/{joint_states,root_pose,joint_poses}``
 and ``/hsc4d/refined/map``; the summary adds its accuracy and its time
