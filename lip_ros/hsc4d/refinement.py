@@ -1,5 +1,6 @@
 """The offline refinement of a whole HSC4D capture (ROS-free): the whole pose graph at once, the scene-aware
-optimisation over the map of the whole site, and the map rebuilt from the refined trajectory (the paper's S_opt).
+optimisation over the site's map as each window saw it, and the map rebuilt from the refined trajectory (the paper's
+S_opt).
 
 :class:`CaptureRefiner` takes a capture's inputs in the order they arrive, as
 the live graph does: the suit's segments (the pelvis's also drives the
@@ -14,10 +15,12 @@ odometry: S_live). :meth:`CaptureRefiner.refine` then
 1. solves the whole capture's graph at once (:meth:`TrajectoryPipeline.refine`);
 2. optimises it window by window with the scene
    (:func:`~lip_ros.hsc4d.scene_optimisation.optimise_sequence`), each window
-   on the site map as it stood when the window's last sweep was kept, as the
-   live optimisation has it (a *view*: kept every window, the points near the
-   path of the windows that may still wait for it), each point moved with its
-   sweep to the graph's trajectory (as in 3.). Not on the final map: a voxel's
+   on the site map as it stood when the window was optimised live, as the
+   live optimisation has it: when its last sweep was kept, or for a first
+   window waiting for the ground under its feet, the first map that showed it
+   (a *view*: kept every window, the points near the path of the windows that
+   may still wait for it), each point moved with its sweep to the graph's
+   trajectory (as in 3.). Not on the final map: a voxel's
    nearest sighting may come from a later visit, placed by that time's pose
    error, and the contact term then moved the feet by the difference
    (docs/hsc4d/optimisation.md "The map each window stands on");
@@ -25,8 +28,9 @@ odometry: S_live). :meth:`CaptureRefiner.refine` then
    shift of the sweep that placed it, :func:`sweep_shifts`, :meth:`SiteMap.moved`).
 
 Memory: about 4 KB per sweep (the bodies), 20 B per map point and the views
-(20 B per point near the path, a few tens of thousands per window), for the
-whole capture (``TrajectoryConfig.record_s`` bounds the graph's record).
+(20 B per point near the path, a few tens of thousands per view, a view per
+window; the same point in up to four views), for the whole capture
+(``TrajectoryConfig.record_s`` bounds the graph's record).
 """
 
 from __future__ import annotations
@@ -44,10 +48,12 @@ from lip_ros.hsc4d.site_map import SiteMap
 from lip_ros.hsc4d.suit_body import FEET, BodyPose, SuitBody, SuitBodyConfig, bent_legs, leg_chains, moved_body
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 
-__all__ = ["RefinementConfig", "LiveRecord", "Refinement", "MapViews", "CaptureRefiner", "sweep_shifts"]
+__all__ = ["RefinementConfig", "LiveRecord", "Refinement", "MapViews", "CaptureRefiner", "sweep_shifts",
+           "FOOT_REACH_M"]
 
-#: how far (m, horizontally) beyond a window's search radius round a foot a view keeps the map round the pelvis
-#: path: the feet stand within a stride of the pelvis, and the refined pelvis is centimetres from the live one
+#: how far (m, horizontally) beyond a window's search radius round a foot a view keeps the map round the live
+#: pelvis path: a foot stands within about half a metre of the pelvis; the rest leaves room for the refined
+#: pelvis's departure from the live one
 FOOT_REACH_M = 1.0
 
 
@@ -109,7 +115,7 @@ class MapViews:
         return self._views[-1][0] if self._views else None
 
     @property
-    def points(self) -> int:
+    def size(self) -> int:
         """The points kept, in all views."""
         return sum(len(v[1]) for v in self._views)
 
@@ -209,9 +215,15 @@ class CaptureRefiner:
 
     def refine(self, scene: SceneOptimisationConfig | None = None, sole_m: float | None = None) -> Refinement:
         """The offline refinement of everything kept (module docstring), the scene-aware optimisation with
-        ``scene`` (default: the configuration's) and ``sole_m`` (None: measured in its first window); ValueError
-        before any sweep was posed."""
+        ``scene`` (default: the configuration's; its window and ground search radius as the configuration's, which
+        the views were kept for) and ``sole_m`` (None: measured in its first window); ValueError before any sweep
+        was posed."""
         start = time.perf_counter()
+        scene = scene or self.config.scene
+        if scene.window != self.config.scene.window or scene.radius_m > self.config.scene.radius_m:
+            raise ValueError(f"the views of the map were kept for windows of {self.config.scene.window} frames and a "
+                             f"ground search within {self.config.scene.radius_m} m, not {scene.window} and "
+                             f"{scene.radius_m}")
         live = self.record
         if not len(live.stamps_ns):
             raise ValueError(f"nothing to refine: {self.pipeline.status}")
@@ -228,8 +240,8 @@ class CaptureRefiner:
         skeleton = self.body.skeleton
         t0 = time.perf_counter()
         result = optimise_sequence(t_s, graph, *leg_chains(skeleton, live.body.local_rot), live.suit_pelvis[:, :3, 3],
-                                   live.suit_joints[:, self._feet], lambda step: self.views.at(step, shifts),
-                                   scene or self.config.scene, sole_m)
+                                   live.suit_joints[:, self._feet], lambda step: self.views.at(step, shifts), scene,
+                                   sole_m)
         window_s = np.full(len(result.windows), (time.perf_counter() - t0) / max(len(result.windows), 1))
         body = bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton, result.legs)
         return Refinement(live.stamps_ns, graph, result.pelvis, body, self._shifted(live, result.pelvis),

@@ -64,7 +64,7 @@ def test_each_window_stands_on_the_map_as_it_stood_then_moved_with_its_sweeps():
     for step in (0, 99):
         np.testing.assert_allclose(views.at(step, shifts), [[5.0, 0.0, 0.002]], atol=1e-6)  # far point left out
     np.testing.assert_allclose(views.at(100, shifts), [[5.0, 0.0, 0.0]], atol=1e-6)
-    assert views.newest == 199 and views.points == 2
+    assert views.newest == 199 and views.size == 2
     with pytest.raises(LookupError):
         views.at(200, shifts)
     with pytest.raises(ValueError):
