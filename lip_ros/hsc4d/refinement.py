@@ -25,7 +25,7 @@ odometry: S_live). :meth:`CaptureRefiner.refine` then
    error, and the contact term then moved the feet by the difference
    (docs/hsc4d/optimisation.md "The map each window stands on");
 3. rebuilds the map from the refined trajectory (S_opt: each point moved by the
-   shift of the sweep that placed it, :func:`sweep_shifts`, :meth:`SiteMap.moved`).
+   shift of the sweep that placed it, :func:`sweep_shifts`, :meth:`SiteMap.shifted`).
 
 Memory: about 4 KB per sweep (the bodies), 20 B per map point and the views
 (20 B per point near the path, a few tens of thousands per view, a view per
@@ -244,8 +244,9 @@ class CaptureRefiner:
                                    sole_m)
         window_s = np.full(len(result.windows), (time.perf_counter() - t0) / max(len(result.windows), 1))
         body = bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton, result.legs)
-        return Refinement(live.stamps_ns, graph, result.pelvis, body, self._shifted(live, result.pelvis),
-                          result.sole_m, window_s, time.perf_counter() - start)
+        rebuilt = self.pipeline.site.shifted(self._shifts(live, result.pelvis))
+        return Refinement(live.stamps_ns, graph, result.pelvis, body, rebuilt, result.sole_m, window_s,
+                          time.perf_counter() - start)
 
     def _shifts(self, live: LiveRecord, to: np.ndarray) -> np.ndarray:
         """(K, 3) how far each sweep in the site map moves for the pelvis trajectory ``to`` (N, 4, 4)
@@ -253,12 +254,6 @@ class CaptureRefiner:
         shifts = np.zeros((self.pipeline.mapped, 3))
         shifts[self._mapped] = sweep_shifts(live.lidar, to, self.pipeline.T_L_M)
         return shifts
-
-    def _shifted(self, live: LiveRecord, to: np.ndarray) -> np.ndarray:
-        """(M, 3) the site map rebuilt from the pelvis trajectory ``to`` (N, 4, 4) (:func:`sweep_shifts`)."""
-        corrections = np.tile(np.eye(4), (self.pipeline.mapped, 1, 1))
-        corrections[:, :3, 3] = self._shifts(live, to)
-        return self.pipeline.site.moved(corrections)
 
 
 def sweep_shifts(lidar: np.ndarray, pelvis: np.ndarray, T_L_M: np.ndarray) -> np.ndarray:

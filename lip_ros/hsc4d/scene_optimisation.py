@@ -13,7 +13,10 @@ minimise
   it to ``above_m`` over it, per stance, since the point cloud has holes; the band keeps the next tread of a
   stair out; the foot joint stands ``sole_m`` above its sole, measured on the still start; the mean over a
   stance, since the joint rises and falls as the foot rolls);
-* **sliding**: a standing foot's motion from one frame to the next, while it stands in both;
+* **sliding**: a standing foot's motion from one frame to the next, while it stands in both; its square up to
+  ``sliding_huber_m``, growing linearly beyond (a Huber loss): the suit calls a foot standing at a stance's edges
+  while it already lifts (up to the stance speed's 7 cm a frame at 10 Hz), and such a step must not drag the
+  body with a force that grows with it;
 * **orientation**: the body's turn away from the fused rotation (the landmarks; the suit's rotation) and its
   change from frame to frame (as smooth as the suit's);
 * **smoothness**: the pelvis's horizontal step from frame to frame against the suit's (the paper's: move as smoothly
@@ -74,6 +77,9 @@ class SceneOptimisationConfig:
     # captures, docs/hsc4d/optimisation.md)
     stance_speed_mps: float = 0.7
     contact_huber_m: float = 0.02  # the contact residual is quadratic below this, linear above (a wrong plane)
+    # a standing foot's step is quadratic below this, linear above (a foot the suit calls standing as it lifts):
+    # the issue's bound on sliding, 1 cm a frame; a step beyond it is not a standing foot's
+    sliding_huber_m: float = 0.01
     contact: float = 1.0  # weights: per m^2 of the mean squared (Huber) residual (3 cost 0.1 cm vertical) ...
     sliding: float = 3.0  # ... per m^2 of a standing foot's step
     orientation: float = 1.0  # ... per rad^2 of the turn away from the fused rotation and of its change
@@ -92,6 +98,7 @@ class SceneOptimisationConfig:
         if not (self.window >= 3 and 0.0 < self.support_radius_m <= self.radius_m and self.above_m >= 0.0
                 and self.below_m > 0.0 and self.plane_tolerance_m > 0.0 and 0.0 < self.plane_max_tilt_deg < 90.0
                 and self.plane_min_points >= 3 and self.stance_speed_mps > 0.0 and self.contact_huber_m > 0.0
+                and self.sliding_huber_m > 0.0
                 and all(getattr(self, t) >= 0.0 for t in TERMS) and self.iterations > 0 and self.max_wait_s >= 0.0):
             raise ValueError(f"invalid {self}")
 
@@ -212,6 +219,14 @@ def _step_mean(x: torch.Tensor) -> torch.Tensor:
     return ((x[1:] - x[:-1]) ** 2).flatten(1).sum(-1).mean() if len(x) > 1 else x.new_zeros(())
 
 
+def _huber_square(steps: torch.Tensor, delta: float) -> torch.Tensor:
+    """Each step's (M, 3) squared length up to ``delta``, ``2 delta |step| - delta^2`` beyond it (M,): a Huber
+    loss, twice torch's, so that a step within ``delta`` weighs as its square."""
+    square = (steps**2).sum(-1)
+    length = torch.sqrt(square.clamp_min(delta**2))  # no square root of zero: its gradient is not finite
+    return torch.where(square < delta**2, square, 2.0 * delta * length - delta**2)
+
+
 def _terms(t: torch.Tensor, rot: torch.Tensor, turns: torch.Tensor, window: WindowInput, sole_m: float,
            c: SceneOptimisationConfig, fixed: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
     """Each term's value (unweighted) and the feet (N, 2, 3) for translations ``t`` (N, 3), body turns ``rot``
@@ -236,7 +251,7 @@ def _terms(t: torch.Tensor, rot: torch.Tensor, turns: torch.Tensor, window: Wind
         all_t, all_feet = torch.cat([t_b[None], t]), torch.cat([feet_b[None], feet])
         all_stance = torch.cat([stance[:1], stance])  # the frame before counts as standing as the first does
     both = all_stance[1:] & all_stance[:-1]
-    sliding = ((all_feet[1:] - all_feet[:-1])[both] ** 2).sum(-1).mean() if both.any() else zero
+    sliding = _huber_square((all_feet[1:] - all_feet[:-1])[both], c.sliding_huber_m).mean() if both.any() else zero
     orientation = (rot**2).sum(-1).mean() + _step_mean(rot)
     steps = torch.linalg.norm(all_t[1:, :2] - all_t[:-1, :2], dim=-1)  # horizontal: the suit knows no heights
     suit = torch.as_tensor(window.suit_steps[-len(steps):], dtype=t.dtype) if len(steps) else steps

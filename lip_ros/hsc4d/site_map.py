@@ -151,17 +151,10 @@ class SiteMap:
         keep = box[distance <= radius_m]
         return points[keep].copy(), sweeps[keep].astype(np.int64)
 
-    def moved(self, corrections: np.ndarray) -> np.ndarray:
-        """(M, 3) float32: each point moved by its sweep's correction T_map'_map (K, 4, 4), indexed by the sweeps'
-        indices (the refined pose times the inverse of the pose the point was placed with)."""
-        out = np.empty((self.size, 3), dtype=np.float32)
-        sweeps = self._sweep[:self.size]
-        order = np.argsort(sweeps, kind="stable")  # each sweep's points together: one transform each
-        for points in np.split(order, np.flatnonzero(np.diff(sweeps[order])) + 1):
-            if len(points):
-                C = corrections[sweeps[points[0]]]
-                out[points] = self._points[points] @ C[:3, :3].T + C[:3, 3]
-        return out
+    def shifted(self, shifts: np.ndarray) -> np.ndarray:
+        """(M, 3) float32: each point moved by its sweep's shift (K, 3), indexed by the sweeps' indices (the
+        refinement moves each sweep to its refined pose, its attitude kept, as ``refinement.sweep_shifts`` says)."""
+        return (self._points[:self.size] + shifts[self._sweep[:self.size]]).astype(np.float32)
 
 
 def _inserted(index: tuple[np.ndarray, np.ndarray], keys: np.ndarray, slots: np.ndarray

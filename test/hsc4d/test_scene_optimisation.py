@@ -169,12 +169,14 @@ def test_each_term_does_its_part(walk):
 
 
 def test_the_legs_bend_to_stop_a_standing_foot_the_suit_moves(walk):
-    """The pelvis is where it truly is, but the suit's hips swing each leg 3 deg back and forth (a knee and ankle
-    sensor error would do the same): the standing feet slide. Turning the legs' joints back holds them (the pose
-    prior keeps the rest); with the legs kept as the suit has them (a very high pose weight) they slide on."""
+    """The pelvis is where it truly is, but the suit's hips swing each leg 2 deg back and forth (a knee and ankle
+    sensor error would do the same): the standing feet slide, 1.7 cm a frame. Turning the legs' joints back holds
+    them (the pose prior keeps the rest); with the legs kept as the suit has them (a very high pose weight) they
+    slide on. (At 3 deg the stiff legs' steps, 2.6 cm, are mostly beyond the sliding term's Huber bound, which
+    pulls their body less: the pelvis 0.71 cm off the truth against 0.83 with a squared term.)"""
     t, pelvis, feet, stance, _, suit, ground = walk
     legs, bones = _legs(feet - pelvis[:, None])
-    wobble = np.radians(3.0) * np.sin(2.0 * np.pi * 1.7 * t)  # about y: the foot moves along the walk
+    wobble = np.radians(2.0) * np.sin(2.0 * np.pi * 1.7 * t)  # about y: the foot moves along the walk
     legs[:, :, 0] = _about_y(wobble)[:, None]
     moved = pelvis[:, None] + feet_offsets(np.tile(np.eye(3), (len(t), 1, 1)), legs, bones)
     config = replace(SceneOptimisationConfig(), window=50)
@@ -182,16 +184,37 @@ def test_the_legs_bend_to_stop_a_standing_foot_the_suit_moves(walk):
     stiff = optimise_sequence(t, _poses(pelvis), legs, bones, suit, feet, lambda k: ground,
                               replace(config, pose=1e6), sole_m=SOLE_M)
     slide = {name: _errors(f, stance)[1] for name, f in (("suit", moved), ("bent", bent.feet), ("stiff", stiff.feet))}
-    assert slide["suit"] > 0.02
+    assert slide["suit"] > 0.015
     assert slide["bent"] < 0.75 * slide["stiff"]
     # the legs took the suit's error, not the pelvis: it stays nearer the truth, the feet nearer their true offsets
     off = {name: np.linalg.norm(r.pelvis[:, :3, 3] - pelvis, axis=1).mean() for name, r in (("bent", bent),
                                                                                               ("stiff", stiff))}
-    assert off["bent"] < 0.6 * off["stiff"]
+    assert off["bent"] < 0.65 * off["stiff"]
     true = feet - pelvis[:, None]
     assert (np.linalg.norm(bent.feet - bent.pelvis[:, None, :3, 3] - true, axis=-1).mean()
             < 0.75 * np.linalg.norm(moved - pelvis[:, None] - true, axis=-1).mean())
     assert np.allclose(np.linalg.det(bent.legs), 1.0)
+
+
+def test_a_foot_the_suit_calls_standing_as_it_lifts_does_not_drag_the_body(walk):
+    """The pelvis and legs as they truly are, but the suit's feet two frames late: the stance the suit tells runs two
+    frames into each swing, where the foot lifts 20-40 cm a frame. Holding those steps to nothing drags the body
+    (squared, as first built: 1.8 cm on average, 7.5 at worst); the sliding term's Huber loss (linear beyond 1 cm a
+    frame) bounds their pull (0.7 and 2.2 cm), and the truly standing feet stay nearer the ground."""
+    t, pelvis, feet, stance, _, _, ground = walk
+    late = np.concatenate([feet[:1], feet[:1], feet[:-2]])
+    assert (stance_from_suit(late, t, SceneOptimisationConfig().stance_speed_mps) & ~stance).sum() >= 25
+    legs, bones = _legs(feet - pelvis[:, None])
+    config = replace(SceneOptimisationConfig(), window=50)
+    off, contact = {}, {}
+    for name, huber_m in (("huber", config.sliding_huber_m), ("squared", 100.0)):
+        result = optimise_sequence(t, _poses(pelvis), legs, bones, pelvis, late, lambda k: ground,
+                                   replace(config, sliding_huber_m=huber_m), sole_m=SOLE_M)
+        error = np.linalg.norm(result.pelvis[:, :3, 3] - pelvis, axis=1)
+        off[name], contact[name] = (error.mean(), error.max()), _errors(result.feet, stance)[0]
+    assert off["squared"][0] > 0.01  # the edges drag a squared term's body: this test can tell the two apart
+    assert off["huber"][0] < 0.6 * off["squared"][0] and off["huber"][1] < 0.5 * off["squared"][1]
+    assert contact["huber"] < 0.6 * contact["squared"]
 
 
 def _about_y(angle: np.ndarray) -> np.ndarray:
@@ -212,6 +235,8 @@ def test_config_checks():
         SceneOptimisationConfig(window=2)
     with pytest.raises(ValueError):
         SceneOptimisationConfig(contact=-1.0)
+    with pytest.raises(ValueError):
+        SceneOptimisationConfig(sliding_huber_m=0.0)
     with pytest.raises(ValueError, match="unknown term"):
         without(SceneOptimisationConfig(), "gravity")
     assert without(SceneOptimisationConfig(), "sliding").sliding == 0.0

@@ -76,14 +76,14 @@ def test_far_points_are_left_out_and_the_size_is_bounded():
     assert site.add(grid + [0.0, 0.0, 1.0], np.eye(4), 2) == 0 and site.refused == 150
 
 
-def test_moved_puts_each_point_where_its_own_sweep_went():
+def test_shifted_puts_each_point_where_its_own_sweep_went():
     site = SiteMap(SiteMapConfig(voxel_m=0.05))
     a, b = np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 2.0, 0.0]])
     site.add(a, np.eye(4), 0)
     site.add(b, _pose(0.0, (0.0, 0.0, 1.0)), 1)
-    corrections = np.stack([_pose(np.pi / 2, (0.0, 0.0, 0.0)), _pose(0.0, (0.5, 0.0, 0.0))])
-    moved = site.moved(corrections)
-    assert np.allclose(moved, [[0.0, 1.0, 0.0], [0.5, 2.0, 1.0]], atol=1e-6)
+    shifted = site.shifted(np.array([[0.0, -0.25, 0.0], [0.5, 0.0, 0.0]]))
+    assert shifted.dtype == np.float32
+    assert np.allclose(shifted, [[1.0, -0.25, 0.0], [0.5, 2.0, 1.0]], atol=1e-6)
     many = SiteMap()  # past the set of recent voxels into the sorted array, still one point per voxel
     rng = np.random.default_rng(1)
     cloud = rng.uniform(-20, 20, (300_000, 3))
