@@ -53,7 +53,7 @@ from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d.lidar_odometry import NOT_REGISTERED, KissIcpAlone
 from lip_ros.hsc4d.refinement import CaptureRefiner, RefinementConfig
 from lip_ros.hsc4d.scene_optimisation import TERMS, SceneOptimisationConfig, optimise_sequence, without
-from lip_ros.hsc4d.suit_body import FEET, bent_legs, leg_chains, moved_body
+from lip_ros.hsc4d.suit_body import FEET, bent_legs, leg_chains, moved_body, resized_body
 from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.rig.mesh_raycast import MeshRaycaster
 from lip_ros.rig.site_capture import SiteCapture
@@ -113,6 +113,8 @@ class TrajectoryRun:
     true_mount: np.ndarray
     hand_eye: np.ndarray | None
     mount_checks: str
+    body_scales: dict[str, float]  #: the body's size over the contract's: "live" (height), "live_optimised"
+    #: (its last window's), "refined", "truth"
 
 
 def capture_sweeps(capture: SiteCapture, refiner: CaptureRefiner) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
@@ -197,8 +199,8 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                                live.suit_pelvis[:, :3, 3], live.suit_joints[:, feet],
                                lambda k: next(m for last, m in maps if last >= k), scene)
     poses["live_optimised"] = result.pelvis
-    joints["live_optimised"] = bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton,
-                                         result.legs).joints
+    joints["live_optimised"] = resized_body(bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton,
+                                                      result.legs), result.leg_ratio).joints
     for term, name in zip(TERMS, ABLATIONS, strict=True):
         ablated = refiner.refine(without(scene, term), refined.sole_m)
         poses[name], joints[name] = ablated.pelvis, ablated.body.joints
@@ -213,7 +215,9 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                          {"live": maps[-1][1], "refined": refined.map},
                          refined.seconds, np.linalg.inv(pipeline.T_L_M), pipeline.config.mount.T_M_L,
                          capture.mount.T_M_L, pipeline.hand_eye.R_M_L,
-                         f"spin: {pipeline.spin.status}; hip: {pipeline.side.status}")
+                         f"spin: {pipeline.spin.status}; hip: {pipeline.side.status}",
+                         {"live": skeleton.scale, "live_optimised": skeleton.scale * float(result.leg_ratio[-1]),
+                          "refined": skeleton.scale * refined.leg_ratio, "truth": capture.motion.skeleton.scale})
 
 
 def _fit_window(run: TrajectoryRun, fit_s: float) -> np.ndarray:

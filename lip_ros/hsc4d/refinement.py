@@ -43,9 +43,23 @@ import numpy as np
 
 from lip_ros.core.imu_sync import ImuSampleLike
 from lip_ros.core.skeleton import load_skeleton
-from lip_ros.hsc4d.scene_optimisation import MAX_WAIT_WINDOWS, SceneOptimisationConfig, optimise_sequence
+from lip_ros.hsc4d.scene_optimisation import (
+    MAX_WAIT_WINDOWS,
+    SceneOptimisationConfig,
+    optimise_sequence,
+    walk_leg_ratio,
+)
 from lip_ros.hsc4d.site_map import SiteMap
-from lip_ros.hsc4d.suit_body import FEET, BodyPose, SuitBody, SuitBodyConfig, bent_legs, leg_chains, moved_body
+from lip_ros.hsc4d.suit_body import (
+    FEET,
+    BodyPose,
+    SuitBody,
+    SuitBodyConfig,
+    bent_legs,
+    leg_chains,
+    moved_body,
+    resized_body,
+)
 from lip_ros.hsc4d.trajectory import TrajectoryConfig, TrajectoryPipeline, TrajectoryStep
 
 __all__ = ["RefinementConfig", "LiveRecord", "Refinement", "MapViews", "CaptureRefiner", "sweep_shifts",
@@ -89,7 +103,8 @@ class Refinement:
     """The refined capture at the live sweeps' times (N,): the whole graph's pelvis T_map_P (N, 4, 4), that after
     the scene-aware optimisation, the body on it, the whole-site map rebuilt from the refined trajectory (S_opt)
     (M, 3) in ``map``, the sole height used (m), the time per optimisation window and
-    for the whole refinement (s)."""
+    for the whole refinement (s), and the legs' length from the whole walk over the live body's (the refined
+    body's size over the live one's)."""
 
     stamps_ns: np.ndarray
     graph: np.ndarray
@@ -99,6 +114,7 @@ class Refinement:
     sole_m: float
     window_s: np.ndarray
     seconds: float
+    leg_ratio: float
 
 
 class MapViews:
@@ -216,8 +232,9 @@ class CaptureRefiner:
     def refine(self, scene: SceneOptimisationConfig | None = None, sole_m: float | None = None) -> Refinement:
         """The offline refinement of everything kept (module docstring), the scene-aware optimisation with
         ``scene`` (default: the configuration's; its window and ground search radius as the configuration's, which
-        the views were kept for) and ``sole_m`` (None: measured in its first window); ValueError before any sweep
-        was posed."""
+        the views were kept for) and ``sole_m`` (None: measured in its first window); the legs' length from the
+        whole capture's walk at once (``scene.legs_from_walk``; :func:`walk_leg_ratio`), the body resized to it;
+        ValueError before any sweep was posed."""
         start = time.perf_counter()
         scene = scene or self.config.scene
         if scene.window != self.config.scene.window or scene.radius_m > self.config.scene.radius_m:
@@ -238,15 +255,18 @@ class CaptureRefiner:
         shifts = self._shifts(live, graph)  # the feet meet the ground as their own trajectory puts it
         t_s = (live.stamps_ns - live.stamps_ns[0]) * 1e-9
         skeleton = self.body.skeleton
+        legs, bones = leg_chains(skeleton, live.body.local_rot)
+        suit_feet = live.suit_joints[:, self._feet]
+        walk = walk_leg_ratio(t_s, graph, legs, bones, suit_feet, scene) if scene.legs_from_walk else None
+        ratio = 1.0 if walk is None else walk
         t0 = time.perf_counter()
-        result = optimise_sequence(t_s, graph, *leg_chains(skeleton, live.body.local_rot), live.suit_pelvis[:, :3, 3],
-                                   live.suit_joints[:, self._feet], lambda step: self.views.at(step, shifts), scene,
-                                   sole_m)
+        result = optimise_sequence(t_s, graph, legs, bones, live.suit_pelvis[:, :3, 3], suit_feet,
+                                   lambda step: self.views.at(step, shifts), scene, sole_m, leg_ratio=ratio)
         window_s = np.full(len(result.windows), (time.perf_counter() - t0) / max(len(result.windows), 1))
-        body = bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton, result.legs)
+        body = resized_body(bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton, result.legs), ratio)
         rebuilt = self.pipeline.site.shifted(self._shifts(live, result.pelvis))
         return Refinement(live.stamps_ns, graph, result.pelvis, body, rebuilt, result.sole_m, window_s,
-                          time.perf_counter() - start)
+                          time.perf_counter() - start, ratio)
 
     def _shifts(self, live: LiveRecord, to: np.ndarray) -> np.ndarray:
         """(K, 3) how far each sweep in the site map moves for the pelvis trajectory ``to`` (N, 4, 4)

@@ -15,8 +15,8 @@ minimise
   stance, since the joint rises and falls as the foot rolls);
 * **sliding**: a standing foot's motion from one frame to the next, while it stands in both; its square up to
   ``sliding_huber_m``, growing linearly beyond (a Huber loss): the suit calls a foot standing at a stance's edges
-  while it already lifts (up to the stance speed's 7 cm a frame at 10 Hz), and such a step must not drag the
-  body with a force that grows with it;
+  while it already lifts (the suit's own foot up to the stance speed's 7 cm a frame at 10 Hz, the fused one
+  further), and such a step must not drag the body with a force that grows with it;
 * **orientation**: the body's turn away from the fused rotation (the landmarks; the suit's rotation) and its
   change from frame to frame (as smooth as the suit's);
 * **smoothness**: the pelvis's horizontal step from frame to frame against the suit's (the paper's: move as smoothly
@@ -43,10 +43,11 @@ import torch
 
 from lip_ros.core.ground_plane import GroundPlane, fit_ground_plane
 from lip_ros.core.torch_kinematics import axis_angle_to_matrix
+from lip_ros.hsc4d.leg_scale import LegScale, LegScaleConfig, standing_steps
 
 __all__ = ["SceneOptimisationConfig", "WindowInput", "WindowResult", "TERMS", "stance_from_suit",
            "fit_foot_planes", "leg_offsets", "feet_offsets", "optimise_window", "without", "SequenceResult",
-           "sole_height", "SceneOptimiser", "optimise_sequence", "MAX_WAIT_WINDOWS"]
+           "sole_height", "SceneOptimiser", "optimise_sequence", "walk_leg_ratio", "MAX_WAIT_WINDOWS"]
 
 #: the loss terms, in report order
 TERMS = ("contact", "sliding", "orientation", "smoothness", "prior", "pose")
@@ -81,7 +82,7 @@ class SceneOptimisationConfig:
     # the issue's bound on sliding, 1 cm a frame; a step beyond it is not a standing foot's
     sliding_huber_m: float = 0.01
     contact: float = 1.0  # weights: per m^2 of the mean squared (Huber) residual (3 cost 0.1 cm vertical) ...
-    sliding: float = 3.0  # ... per m^2 of a standing foot's step
+    sliding: float = 3.0  # ... per m^2 of a standing foot's step (up to sliding_huber_m)
     orientation: float = 1.0  # ... per rad^2 of the turn away from the fused rotation and of its change
     smoothness: float = 1.0  # ... per m^2 of a frame's horizontal step length off the suit's
     prior: float = 1.0  # ... per m^2 of the translation's distance from the fused one
@@ -89,6 +90,9 @@ class SceneOptimisationConfig:
     # development captures (docs/hsc4d/optimisation.md): 1 took out half as much sliding, 0.1 cost MPJPE
     pose: float = 0.3
     iterations: int = 60  # L-BFGS iterations per window
+    # the legs' length from the walk (leg_scale.py): each window's bones times the ratio of the standing pelvis's
+    # steps to the legs' over the windows so far (the bones as given until it is believed); False: as given
+    legs_from_walk: bool = True
     # the first window waits for a map that shows the ground under its feet (mapped once the wearer walked away from
     # the start) for a window more, or this long if that is more (two 100-frame windows are 10 s at 20 Hz: the
     # wearer had not walked off the start's ground by then), up to four windows
@@ -132,7 +136,8 @@ class WindowInput:
 @dataclass(frozen=True)
 class WindowResult:
     """The optimised pelvis translations (N, 3) and rotations (N, 3, 3), the legs' local rotations (N, 2, 3, 3, 3),
-    the feet (N, 2, 3), and each term's value before and after (unweighted)."""
+    the feet (N, 2, 3), each term's value before and after (unweighted), and the legs' length over the bones'
+    given (:class:`SceneOptimiser`): the body's size to pose it with, times the given one."""
 
     t: np.ndarray
     R: np.ndarray
@@ -140,6 +145,7 @@ class WindowResult:
     feet: np.ndarray
     before: dict[str, float]
     after: dict[str, float]
+    leg_ratio: float = 1.0
 
 
 def stance_from_suit(feet: np.ndarray, t_s: np.ndarray, speed_mps: float) -> np.ndarray:
@@ -317,8 +323,9 @@ def optimise_window(window: WindowInput, sole_m: float, config: SceneOptimisatio
 @dataclass(frozen=True)
 class SequenceResult:
     """A whole sequence optimised window by window: pelvis poses T_map_P (N, 4, 4), the legs' local rotations
-    (N, 2, 3, 3, 3), feet (N, 2, 3), which foot stood (N, 2), the planes found (N, 2, 4), the sole height used (m)
-    and each window's terms before and after."""
+    (N, 2, 3, 3, 3), feet (N, 2, 3), which foot stood (N, 2), the planes found (N, 2, 4), the sole height (m)
+    and each window's terms before and after; the legs' length over the bones' given, per frame. Each window used
+    the sole height at its own legs' length; ``sole_m`` is the one at the last window's."""
 
     pelvis: np.ndarray
     legs: np.ndarray
@@ -327,6 +334,7 @@ class SequenceResult:
     planes: np.ndarray
     sole_m: float
     windows: list[WindowResult]
+    leg_ratio: np.ndarray  #: (N,) each frame's :attr:`WindowResult.leg_ratio` (1 where left as fused)
 
 
 def sole_height(feet: np.ndarray, stance: np.ndarray, planes: np.ndarray) -> float:
@@ -344,19 +352,47 @@ class SceneOptimiser:
     :meth:`optimise` solves its oldest window on the map as it stands then, continuing from the window before.
     The sole height is measured in the first window optimised (from the still start; :func:`sole_height`) unless
     given; until a map shows the ground under that window's feet, its frames wait (up to :attr:`capacity`: then
-    the oldest window must be :meth:`drop` ped)."""
+    the oldest window must be :meth:`drop` ped). The legs' length over the bones given (:attr:`leg_ratio`): given,
+    or from the walk of the windows optimised so far (``legs_from_walk``, :mod:`~lip_ros.hsc4d.leg_scale`); a
+    measured sole height follows it, since the first window's pelvis height above its ground is what was seen (the
+    legs' length and the sole share it)."""
 
     def __init__(self, config: SceneOptimisationConfig | None = None, sole_m: float | None = None,
-                 seed: int = 0) -> None:
+                 seed: int = 0, leg_ratio: float | None = None) -> None:
+        if leg_ratio is not None and not (np.isfinite(leg_ratio) and leg_ratio > 0.0):
+            raise ValueError(f"the legs' length over the bones' must be > 0, got {leg_ratio}")
         self.config = config or SceneOptimisationConfig()
-        self.sole_m = sole_m
+        self._sole_given = sole_m
+        self._leg_ratio_given = leg_ratio
+        self.walk = LegScale()  #: the legs' length from the windows' standing feet
+        # the first window's standing frames: the pelvis (K, 3), the foot's offset at the bones' size (K, 3), plane
+        self._sole_seen: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._walked_s = -np.inf  # the newest frame whose standing steps the walk has
         self._rng = np.random.default_rng(seed)
         self._frames: list[tuple[np.ndarray, ...]] = []  # (t_s, pelvis, legs, bones, suit_pelvis, suit_feet)
-        self._before: tuple[np.ndarray, np.ndarray] | None = None
+        self._before: tuple[np.ndarray, np.ndarray, float] | None = None  # last frame optimised: t, feet, ratio
         self._last_suit: np.ndarray | None = None  # the suit's pelvis at the window before's last frame
 
     def __len__(self) -> int:
         return len(self._frames)
+
+    @property
+    def leg_ratio(self) -> float:
+        """The legs' length over the bones given: the one given, the walk's once believed, else 1."""
+        if self._leg_ratio_given is not None:
+            return self._leg_ratio_given
+        walk = self.walk.ratio if self.config.legs_from_walk else None
+        return 1.0 if walk is None else walk
+
+    @property
+    def sole_m(self) -> float | None:
+        """The foot joint's height above its sole: the one given, or measured in the first window with the legs'
+        length now (:attr:`leg_ratio`); None before."""
+        if self._sole_given is not None or self._sole_seen is None:
+            return self._sole_given
+        pelvis, offsets, planes = self._sole_seen
+        return sole_height((pelvis + self.leg_ratio * offsets)[:, None], np.ones((len(pelvis), 1), dtype=bool),
+                           planes[:, None])
 
     @property
     def full(self) -> bool:
@@ -405,23 +441,34 @@ class SceneOptimiser:
         t_s, pelvis, legs, bones, suit_pelvis, suit_feet = (np.array(a) for a in zip(*frames, strict=True))
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         t0 = pelvis[:, :3, 3]
-        feet = t0[:, None, :] + feet_offsets(pelvis[:, :3, :3], legs, bones)
+        offsets = feet_offsets(pelvis[:, :3, :3], legs, bones)
         stance = stance_from_suit(suit_feet, t_s, c.stance_speed_mps)
-        planes, supported = fit_foot_planes(feet, stance, points, self._rng, c)
-        sole = self.sole_m if self.sole_m is not None else sole_height(feet, stance & supported, planes)
-        if not np.isfinite(sole):
-            raise ValueError(f"no standing foot with the ground mapped under it: no sole height yet "
-                             f"({int(stance.sum())} standing feet in {len(t_s)} frames, {len(points)} map points)")
-        self.sole_m = float(sole)
+        # each pair once: a first window waiting for the ground comes again, maybe with more frames
+        self.walk.add(*standing_steps(t0, offsets, stance, t_s[1:] > self._walked_s))
+        self._walked_s = max(self._walked_s, float(t_s[-1]))
+        ratio = self.leg_ratio
+        planes, supported = fit_foot_planes(t0[:, None, :] + ratio * offsets, stance, points, self._rng, c)
+        if self.sole_m is None:
+            ok = stance & supported
+            if not ok.any():
+                raise ValueError(f"no standing foot with the ground mapped under it: no sole height yet "
+                                 f"({int(stance.sum())} standing feet in {len(t_s)} frames, {len(points)} map "
+                                 f"points)")
+            self._sole_seen = (t0[np.nonzero(ok)[0]], offsets[ok], planes[ok])
         chain = suit_pelvis if self._last_suit is None else np.concatenate([self._last_suit[None], suit_pelvis])
         suit_steps = np.linalg.norm(np.diff(chain[:, :2], axis=0), axis=1)  # horizontal (the suit's frame is level)
         fused_steps = np.linalg.norm(np.diff(pelvis[:, :2, 3], axis=0), axis=1)
         if self._last_suit is None:
             suit_steps = np.concatenate([[0.0], suit_steps])
         scale = fused_steps.sum() / suit_steps[1:].sum() if suit_steps[1:].sum() > 0.0 else 1.0
-        result = optimise_window(WindowInput(t0, pelvis[:, :3, :3], legs, bones, stance, planes,
-                                             scale * suit_steps, self._before), self.sole_m, c)
-        self._before, self._last_suit = (result.t[-1], result.feet[-1]), suit_pelvis[-1]
+        before = None
+        if self._before is not None:  # its feet as the legs' length now puts them (they scale about the pelvis)
+            t_last, feet_last, ratio_last = self._before
+            before = (t_last, t_last + (feet_last - t_last) * (ratio / ratio_last))
+        result = optimise_window(WindowInput(t0, pelvis[:, :3, :3], legs, ratio * bones, stance, planes,
+                                             scale * suit_steps, before), self.sole_m, c)
+        result = replace(result, leg_ratio=ratio)
+        self._before, self._last_suit = (result.t[-1], result.feet[-1], ratio), suit_pelvis[-1]
         del self._frames[: len(frames)]
         return result, stance, planes
 
@@ -429,7 +476,7 @@ class SceneOptimiser:
 def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bones: np.ndarray,
                       suit_pelvis: np.ndarray, suit_feet: np.ndarray, map_at: Callable[[int], np.ndarray],
                       config: SceneOptimisationConfig | None = None, sole_m: float | None = None,
-                      seed: int = 0) -> SequenceResult:
+                      seed: int = 0, leg_ratio: float | None = None) -> SequenceResult:
     """Optimise N frames at times ``t_s`` in windows of ``config.window``, each once its last frame is in (as a
     live optimiser one window behind would): the fused pelvis poses T_map_P (N, 4, 4) in ``map``, the legs' local
     rotations (N, 2, 3, 3, 3) and bones ((N,) 2, 4, 3) (:func:`~lip_ros.hsc4d.suit_body.leg_chains`), the pelvis
@@ -437,13 +484,15 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bon
     the map's points when frame ``k`` was the newest (``map_at(k)``, (M, 3) in ``map``), with a
     :class:`SceneOptimiser`. ``sole_m`` None: measured in the first window (:func:`sole_height`) on the first map
     that shows the ground under its feet, the window waiting for it as long as the optimiser's
-    :attr:`SceneOptimiser.capacity` allows (then it is left as fused); ValueError if none does by the end."""
-    optimiser = SceneOptimiser(config, sole_m, seed)
+    :attr:`SceneOptimiser.capacity` allows (then it is left as fused); ValueError if none does by the end.
+    ``leg_ratio`` None: the legs' length from the walk as the windows come (:attr:`SceneOptimiser.leg_ratio`)."""
+    optimiser = SceneOptimiser(config, sole_m, seed, leg_ratio)
     bones = np.broadcast_to(bones, legs.shape[:2] + (4, 3)).copy()
     out_pelvis, out_legs = pelvis.copy(), np.array(legs, dtype=np.float64)
     out_feet = pelvis[:, None, :3, 3] + feet_offsets(pelvis[:, :3, :3], legs, bones)
     stance = np.zeros((len(t_s), 2), dtype=bool)
     planes = np.full((len(t_s), 2, 4), np.nan)
+    ratio = np.ones(len(t_s))
     windows: list[WindowResult] = []
     done = 0  # the first frame not optimised (or skipped) yet
     for k in range(len(t_s)):
@@ -462,9 +511,21 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bon
             w = slice(done, done + len(result.t))
             out_pelvis[w, :3, :3], out_pelvis[w, :3, 3], out_legs[w], out_feet[w] = (result.R, result.t, result.legs,
                                                                                       result.feet)
-            stance[w], planes[w] = st, pl
+            stance[w], planes[w], ratio[w] = st, pl, result.leg_ratio
             windows.append(result)
             done = w.stop
     if optimiser.sole_m is None:
         raise ValueError("no standing foot with the ground mapped under it: no sole height")
-    return SequenceResult(out_pelvis, out_legs, out_feet, stance, planes, float(optimiser.sole_m), windows)
+    return SequenceResult(out_pelvis, out_legs, out_feet, stance, planes, float(optimiser.sole_m), windows, ratio)
+
+
+def walk_leg_ratio(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bones: np.ndarray, suit_feet: np.ndarray,
+                   config: SceneOptimisationConfig | None = None) -> float | None:
+    """The legs' length over the ``bones``' from a whole sequence's walk at once (:mod:`~lip_ros.hsc4d.leg_scale`,
+    every pair kept): N frames as :func:`optimise_sequence` takes them; None if the walk does not tell it."""
+    c = config or SceneOptimisationConfig()
+    bones = np.broadcast_to(bones, legs.shape[:2] + (4, 3)).copy()
+    walk = LegScale(LegScaleConfig(capacity=max(LegScaleConfig().capacity, 2 * len(t_s))))
+    walk.add(*standing_steps(pelvis[:, :3, 3], feet_offsets(pelvis[:, :3, :3], legs, bones),
+                             stance_from_suit(suit_feet, t_s, c.stance_speed_mps)))
+    return walk.ratio

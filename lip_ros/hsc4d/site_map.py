@@ -16,8 +16,8 @@ the maps sharper (p90 on every set); a guess the figures fit: the nearest sighti
 under the feet is placed by the pose of about the time the wearer stands there,
 so the contact term meets ground that carries the body's own pose error.
 Rebuilding the map from another trajectory (the paper's S_opt, from the
-refined one) is then moving each point by its own sweep's correction
-(:meth:`SiteMap.moved`): the points stay as the sensor saw them, only where
+refined one) is then moving each point by its own sweep's shift
+(:meth:`SiteMap.shifted`): the points stay as the sensor saw them, only where
 each sweep stood changes, and no sweep has to be kept. Bounded: points in new
 voxels past ``max_points`` are not kept and are counted.
 """

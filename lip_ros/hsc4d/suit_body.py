@@ -27,7 +27,7 @@ from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle, q
 from lip_ros.core.skeleton import NUM_JOINTS, Skeleton, forward_kinematics
 
 __all__ = ["SuitBodyConfig", "BodyPose", "SuitBody", "unmeasured_chains", "moved_body", "LEGS", "FEET", "leg_chains",
-           "bent_legs"]
+           "bent_legs", "resized_body"]
 
 #: each leg's joints from the hip down to the foot joint (left, right): the scene-aware optimisation turns the hip,
 #: knee and ankle to place the foot
@@ -71,6 +71,14 @@ def moved_body(pose: BodyPose, T_from: np.ndarray, T_to: np.ndarray) -> BodyPose
     local[..., 0, :, :] = turn @ local[..., 0, :, :]
     joints = T_to[..., None, :3, 3] + np.einsum("...ab,...jb->...ja", turn, pose.joints - T_from[..., None, :3, 3])
     return BodyPose(local, turn[..., None, :, :] @ pose.glob_rot, joints)
+
+
+def resized_body(pose: BodyPose, ratio: float | np.ndarray) -> BodyPose:
+    """``pose`` (any leading dimensions) on a skeleton ``ratio`` times its size (a scalar, or one per leading
+    index): its joints moved about the pelvis (the root), its rotations kept."""
+    ratio = np.asarray(ratio, dtype=np.float64)[..., None, None]
+    root = pose.joints[..., :1, :]
+    return BodyPose(pose.local_rot, pose.glob_rot, root + ratio * (pose.joints - root))
 
 
 def _leg_joints(skeleton: Skeleton) -> np.ndarray:

@@ -391,7 +391,7 @@ class TrajectoryPipeline:
 
     def add_to_map(self, step: TrajectoryStep) -> int:
         """Put an output's deskewed points in the site map, placed by its odometry pose T_map_L; its index in the
-        map (the sweep index of the points it placed, :meth:`SiteMap.moved`)."""
+        map (the sweep index of the points it placed, :meth:`SiteMap.shifted`)."""
         self.site.add(step.points, step.lidar, self.mapped)
         self.mapped += 1
         return self.mapped - 1

@@ -89,6 +89,12 @@ def _shortfalls_line(metrics: dict[str, dict[str, float]]) -> str:
         for key, live, by in short)
 
 
+def _scales(scales: dict[str, float]) -> str:
+    """Each size's error against the true one, in per cent."""
+    true = scales["truth"]
+    return ", ".join(f"{100 * (v / true - 1):+.1f} % ({name})" for name, v in scales.items() if name != "truth")
+
+
 def _line(name: str, m: dict[str, float]) -> str:
     return f"  {_LABELS[name]:22s}" + "  ".join(f"{label} {scale * m[key]:.1f}" for key, label, scale, _ in _COLUMNS)
 
@@ -196,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             "sweep_ms_p50": float(np.median(run.sweep_ms)), "sweep_ms_p99": float(np.percentile(run.sweep_ms, 99)),
             "window_s_mean": float(np.mean(run.window_s)), "refine_s": run.refine_s,
             "capture_s": float(run.t_s[-1] - run.t_s[0]), "counts": run.counts, "wall_s": time.perf_counter() - t0,
-            "mount_checks": run.mount_checks,
+            "mount_checks": run.mount_checks, "body_scales": run.body_scales,
         }
         runs.append(run)
         r = report[seed]
@@ -210,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['not_registered']} sweeps posed by the suit under the registration rate cap, "
               f"sweep p50 {r['sweep_ms_p50']:.0f} ms p99 {r['sweep_ms_p99']:.0f} ms (the simulation runs between), "
               f"optimisation {r['window_s_mean']:.2f} s per window, the offline refinement {r['refine_s']:.1f} s "
-              f"for {r['capture_s']:.0f} s, sole {100 * r['sole_m']:.1f} cm; "
+              f"for {r['capture_s']:.0f} s, sole {100 * r['sole_m']:.1f} cm, the body's size off the truth's by "
+              f"{_scales(run.body_scales)}; "
               f"the true motion's own sliding {100 * r['truth_sliding_m']:.2f} cm/frame; the mounting checked at the "
               f"start: {run.mount_checks}")
         for name, m in scene.items():

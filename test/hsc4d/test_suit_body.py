@@ -18,6 +18,7 @@ from lip_ros.hsc4d.suit_body import (
     bent_legs,
     leg_chains,
     moved_body,
+    resized_body,
     unmeasured_chains,
 )
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
@@ -149,3 +150,20 @@ def test_legs_taken_out_and_bent_back_give_the_body_and_move_only_the_legs(captu
     bent = bent_legs(pose, skeleton, turned)
     moved = np.flatnonzero(np.linalg.norm(bent.joints - pose.joints, axis=-1) > 1e-9)
     assert {skeleton.names[j] for j in moved} == {"left_knee", "left_ankle", "left_foot"}
+
+
+def test_a_resized_body_is_the_body_posed_on_a_skeleton_that_size(capture):
+    """resized_body (the optimised and refined bodies at the walk's legs' length): what posing on the skeleton
+    scaled by the ratio gives, one frame or many at once with a ratio each."""
+    ns = capture.epoch_ns + 8 * 10**9 + int(round(capture.suit.clock_offset_s * 1e9))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = rot_z(0.3), [1.0, 2.0, 0.9]
+    posed, _ = _fed(capture, 1.0).pose(ns, T)
+    larger, _ = _fed(capture, 1.04).pose(ns, T)
+    resized = resized_body(posed, 1.04)
+    for a, b in ((resized.local_rot, larger.local_rot), (resized.glob_rot, larger.glob_rot),
+                 (resized.joints, larger.joints)):
+        assert np.allclose(a, b, atol=1e-9)
+    stacked = BodyPose(*(np.stack([getattr(posed, f)] * 2) for f in ("local_rot", "glob_rot", "joints")))
+    both = resized_body(stacked, np.array([1.04, 1.0]))
+    assert np.allclose(both.joints[0], larger.joints) and np.allclose(both.joints[1], posed.joints)

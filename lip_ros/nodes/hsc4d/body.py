@@ -31,7 +31,13 @@ not only at the search disc's edge); the ground the wearer stood on at the start
 away (their own body hides it), so that window may wait for a later map, a
 window or ``max_wait_s`` (20 s) long, whichever is longer. A partial window is
 optimised once no fused pose has come for ``optimise_flush_s`` (the end of a
-capture). Frames that cannot be
+capture). With ``body_scale`` 0 the optimised body takes the legs' length from
+the walk (:mod:`lip_ros.hsc4d.leg_scale`: the fused pelvis's steps over a
+standing foot against the suit's legs; the pelvis height's size rests on the
+hip LiDAR's nominal lever arm along the body), from the window in which it is
+first believed on, and is published at that size (``body scale (legs from the
+walk)`` on ``/diagnostics``); the fused body's outputs keep the first size. A
+given ``body_scale`` is kept for both. Frames that cannot be
 optimised (no suit odometry near them; no map, or no ground under the first
 window's feet by then or at the end) are counted by reason on
 ``/diagnostics``.
@@ -84,7 +90,16 @@ from lip_ros.core.torch_runtime import set_threads
 from lip_ros.hsc4d.resume import TrajectoryResume, load_resume, resume_refusal
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
-from lip_ros.hsc4d.suit_body import FEET, BodyPose, SuitBody, SuitBodyConfig, bent_legs, leg_chains, moved_body
+from lip_ros.hsc4d.suit_body import (
+    FEET,
+    BodyPose,
+    SuitBody,
+    SuitBodyConfig,
+    bent_legs,
+    leg_chains,
+    moved_body,
+    resized_body,
+)
 from lip_ros.hsc4d.suit_restart import SuitRestart
 from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.nodes.base import (
@@ -194,7 +209,9 @@ class BodyNode(GraphNode):
         self._optimiser = None
         if p["optimise_window"]:
             set_threads(p["optimise_threads"])
-            self._optimiser = SceneOptimiser(replace(SceneOptimisationConfig(), window=p["optimise_window"]))
+            # the optimised body's legs take their length from the walk unless the body's size is given
+            self._optimiser = SceneOptimiser(replace(SceneOptimisationConfig(), window=p["optimise_window"],
+                                                     legs_from_walk=self._scale_from_height))
             self._window: list[tuple[int, str, BodyPose, np.ndarray]] = []  # the frames in the optimiser
             self._feet = [self.body.skeleton.index(f) for f in FEET]
             self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
@@ -334,7 +351,7 @@ class BodyNode(GraphNode):
             finally:
                 self._held_for(time.monotonic() - start)
             self._window_latency.add(time.monotonic() - start)
-            self._publish_optimised(result.t, result.R, result.legs)
+            self._publish_optimised(result.t, result.R, result.legs, result.leg_ratio)
 
     def _held_for(self, seconds: float) -> None:
         """This callback held the node for ``seconds``: the suit's samples could not come in meanwhile, so the poses
@@ -344,13 +361,14 @@ class BodyNode(GraphNode):
             fused.deadline += seconds
         self._arrived = {segment: at + seconds for segment, at in self._arrived.items()}
 
-    def _publish_optimised(self, t: np.ndarray, R: np.ndarray, legs: np.ndarray) -> None:
+    def _publish_optimised(self, t: np.ndarray, R: np.ndarray, legs: np.ndarray, leg_ratio: float) -> None:
         """The optimised pelvis (N, 3), (N, 3, 3) and legs (N, 2, 3, 3, 3) of the oldest N frames waiting: the body
-        turned about its pelvis with it, on those legs."""
+        turned about its pelvis with it, on those legs, ``leg_ratio`` times its size (the legs' length from the
+        walk)."""
         for k, (stamp_ns, frame_id, pose, T) in enumerate(self._window[: len(t)]):
             T_opt = np.eye(4)
             T_opt[:3, :3], T_opt[:3, 3] = R[k], t[k]
-            moved = bent_legs(moved_body(pose, T, T_opt), self.body.skeleton, legs[k])
+            moved = resized_body(bent_legs(moved_body(pose, T, T_opt), self.body.skeleton, legs[k]), leg_ratio)
             self._opt_odometry.publish(odometry_to_msg(self.backend, stamp_ns, frame_id, PELVIS_FRAME, t[k],
                                                        matrix_to_quat(R[k])))
             for topic, raw in pose_cdr(OPTIMISED_TOPICS, self.body.skeleton, stamp_ns, frame_id, moved.local_rot,
@@ -494,12 +512,14 @@ class BodyNode(GraphNode):
             **self._latency.values("latency_ms"), **self._optimisation_status()}
 
     def _optimisation_status(self) -> dict[str, Any]:
-        """The optimisation's counts: frames optimised, waiting, not optimised by reason; the sole height; time."""
+        """The optimisation's counts: frames optimised, waiting, not optimised by reason; the sole height; the
+        optimised body's size (the legs' length from the walk); time."""
         if self._optimiser is None:
             return {"optimisation": "off"}
-        sole = self._optimiser.sole_m
+        sole, ratio = self._optimiser.sole_m, self._optimiser.leg_ratio
         return {"optimisation: frames optimised": self._optimised, "optimisation: frames waiting": len(self._window),
                 "optimisation: sole height (m)": "unknown" if sole is None else f"{sole:.3f}",
+                "optimisation: body scale (legs from the walk)": f"{self.body.skeleton.scale * ratio:.3f}",
                 **dict(self._not_optimised), **self._window_latency.values("optimisation_ms")}
 
 
