@@ -12,18 +12,27 @@ one core) and RSS (start of playback, end, peak) of the trajectory node's
 process and of the body node's, and with ``--plot PNG`` their RSS over time
 (a long ``--seconds`` shows whether memory stays flat).
 
+A loaded machine: ``--busy N`` runs N busy loops beside the graph, ``--body-nice
+N`` gives the body node's threads that niceness (a body node starved of CPU:
+its optimisation windows take many seconds), ``--paced`` plays as the node tests
+do (``lip_process_bag --paced``: no faster than the trajectory node poses).
+Printed then too: the body node's time per optimisation window (its
+/diagnostics) and the poses it lost.
+
 DDS stays on loopback in a random ``ROS_DOMAIN_ID`` unless set. Progress on
 stderr, a table on stdout.
 
 Run:
   python benchmarks/bench_hsc4d_graph.py [--rates 10 20] [--seconds 30] [--seed 3] [--bag-dir out/bench_hsc4d]
       [--json out/bench_hsc4d_graph.json] [--plot out/bench_hsc4d_rss.png]
+  a starved body node: --rates 10 --seconds 20 --seed 5 --paced --busy 4 --body-nice 5
   the 10-minute memory run: --rates 10 --seconds 600 --plot out/bench_hsc4d_rss_600s.png
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import random
@@ -80,16 +89,46 @@ def _graph_pids() -> dict[str, int]:
     return out
 
 
-def run(bag: Path, out: Path) -> dict:
-    """``lip_process_bag`` on ``bag``; its figures and the graph processes' CPU and memory."""
-    proc = subprocess.Popen([BIN / "lip_process_bag", str(bag), str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL, text=True)
-    usage: dict[str, ProcUsage] = {}
-    start = time.monotonic()
-    while proc.poll() is None:
-        for name, pid in _graph_pids().items():
-            usage.setdefault(name, ProcUsage(name, pid)).sample(time.monotonic())
-        time.sleep(SAMPLE_S)
+def _renice(pid: int, nice: int) -> None:
+    """Give every thread of process ``pid`` the niceness ``nice`` (Linux's is per thread)."""
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, int(task.name), nice)
+
+
+def _optimisation_ms(out: Path) -> dict[str, str]:
+    """The body node's last ``optimisation_ms_*`` values on /diagnostics in the outputs bag ``out``."""
+    from lip_msgs_py import msg_to_diagnostics
+    from lip_ros.bagio import read_messages
+
+    values: dict[str, str] = {}
+    for m in read_messages(out, ["/diagnostics"]):
+        for status in msg_to_diagnostics(m.msg).statuses:
+            if status.name == "hsc4d_body_node: frames":
+                values.update((k, v) for k, v in status.values.items() if k.startswith("optimisation_ms_"))
+    return values
+
+
+def run(bag: Path, out: Path, paced: bool = False, busy: int = 0, body_nice: int = 0) -> dict:
+    """``lip_process_bag`` on ``bag`` (``paced``: ``--paced``), beside ``busy`` busy loops, the body node's threads
+    at niceness ``body_nice``; its figures, the body node's time per optimisation window and the graph processes'
+    CPU and memory."""
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(busy)]
+    try:
+        proc = subprocess.Popen([BIN / "lip_process_bag", str(bag), str(out), *(["--paced"] if paced else [])],
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        usage: dict[str, ProcUsage] = {}
+        start = time.monotonic()
+        while proc.poll() is None:
+            for name, pid in _graph_pids().items():
+                usage.setdefault(name, ProcUsage(name, pid)).sample(time.monotonic())
+                if body_nice and name == "body (child)":
+                    _renice(pid, body_nice)
+            time.sleep(SAMPLE_S)
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()
     stdout = proc.stdout.read()
     if proc.returncode != 0:
         raise RuntimeError(f"lip_process_bag failed:\n{stdout}")
@@ -97,6 +136,7 @@ def run(bag: Path, out: Path) -> dict:
     for key, pattern in _FIGURES.items():
         m = re.search(pattern, stdout)
         figures[key] = [float(g) for g in m.groups()] if m else None
+    figures["optimisation_ms"] = _optimisation_ms(out)
     for name, u in usage.items():
         s = u.summary(start, time.monotonic())
         minutes = np.arange(0.0, u.t[-1] - u.t[0], 60.0)  # RSS once a minute of the run
@@ -136,6 +176,9 @@ def main() -> int:
     p.add_argument("--bag-dir", type=Path, default=Path("out/bench_hsc4d"))
     p.add_argument("--json", type=Path)
     p.add_argument("--plot", type=Path, help="PNG of the graph processes' RSS over time")
+    p.add_argument("--paced", action="store_true", help="lip_process_bag --paced (as the node tests play)")
+    p.add_argument("--busy", type=int, default=0, help="busy loops running beside the graph")
+    p.add_argument("--body-nice", type=int, default=0, help="the body node's threads' niceness (0-19)")
     args = p.parse_args()
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
@@ -145,11 +188,17 @@ def main() -> int:
         bag = capture(args.bag_dir, args.seed, args.seconds, rate)
         out = args.bag_dir / f"outputs_{rate}hz_{int(time.time())}"
         progress(f"{rate} Hz: lip_process_bag {bag.name} (real time, {args.seconds:.0f} s)")
-        results[rate] = run(bag, out)
+        results[rate] = run(bag, out, args.paced, args.busy, args.body_nice)
     print(f"load average (1 min) at the end: {os.getloadavg()[0]:.1f}")
     for rate, r in results.items():
-        print(f"--- {rate} Hz, {args.seconds:.0f} s, seed {args.seed}")
+        print(f"--- {rate} Hz, {args.seconds:.0f} s, seed {args.seed}" + (", paced" if args.paced else "")
+              + (f", {args.busy} busy loops beside" if args.busy else "")
+              + (f", the body node at nice {args.body_nice}" if args.body_nice else ""))
         print("\n".join(f"  {line}" for line in r["summary"] if not line.startswith("plot")))
+        ms = r["optimisation_ms"]
+        if ms:
+            print(f"  body node, time per optimisation window: p50 {ms.get('optimisation_ms_p50')} ms, max "
+                  f"{ms.get('optimisation_ms_max')} ms")
         for name in ("trajectory (fusion_node)", "body (child)"):
             if name in r:
                 u = r[name]

@@ -15,9 +15,15 @@ segments on the fused pelvis; :mod:`~lip_ros.hsc4d.sensors` names the topics;
 :mod:`~lip_ros.hsc4d.suit_restart` tells a new capture (a bag played again) from a clock step.
 :mod:`~lip_ros.hsc4d.scene_optimisation` (torch, the one module that imports
 it) moves the fused body onto the scene window by window (foot contact,
-sliding, orientation, smoothness). :mod:`~lip_ros.hsc4d.evaluation` measures
-trajectory and body on rig captures against the paper's baselines. To come:
-the optimisation in the nodes and the offline map. Like :mod:`lip_ros.lip`
+sliding, orientation, smoothness), the legs' length from the walk
+(:mod:`~lip_ros.hsc4d.leg_scale`); live, each window is solved on a thread of
+its own (:mod:`~lip_ros.hsc4d.background_optimiser`).
+:mod:`~lip_ros.hsc4d.site_map` keeps the whole site's map;
+:mod:`~lip_ros.hsc4d.resume` what a restarted trajectory goes on from;
+:mod:`~lip_ros.hsc4d.refinement` refines a whole capture offline
+(:mod:`~lip_ros.hsc4d.batch`: a bag through it).
+:mod:`~lip_ros.hsc4d.evaluation` measures trajectory and body on rig captures
+against the paper's baselines. Like :mod:`lip_ros.lip`
 it uses :mod:`lip_ros.core` and never imports the other branch; its nodes go in
 :mod:`lip_ros.nodes.hsc4d`.
 """

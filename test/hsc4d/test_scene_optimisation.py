@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import threading
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from lip_ros.hsc4d.background_optimiser import BackgroundOptimiser
 from lip_ros.hsc4d.leg_scale import LegScale, standing_steps
 from lip_ros.hsc4d.scene_optimisation import (
     TERMS,
@@ -355,6 +357,93 @@ def test_the_first_window_waits_for_a_map_with_the_ground_under_its_feet(walk):
     assert np.allclose(too_late.feet[:30], start[:30]) and not np.allclose(too_late.feet[30:], start[30:])
     with pytest.raises(ValueError, match="no sole height"):
         run(len(t))
+
+
+class _GatedMap:
+    """A map whose points are handed over only once :attr:`open` is set: a solve that reads it waits there (what a
+    window that takes long looks like to its owner), then gets the points or ``error``."""
+
+    def __init__(self, points: np.ndarray, error: Exception | None = None) -> None:
+        self.points, self.error, self.open = points, error, threading.Event()
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        assert self.open.wait(20.0), "the test never opened the gate"
+        if self.error is not None:
+            raise self.error
+        return np.asarray(self.points, dtype=dtype)
+
+
+def test_windows_solved_on_a_thread_leave_the_owner_free_and_give_the_same_result(walk):
+    """The body node's optimiser: while a window is solved (held here until the test lets it go), frames go on
+    coming in and wait beside it; once collected they join, and every window comes out as the optimiser alone
+    solves it, each frame's record with it."""
+    t, pelvis, feet, stance, fused, suit, ground = walk
+    config = replace(SceneOptimisationConfig(), window=30)
+    legs, bones = _legs(feet - pelvis[:, None])
+    frames = [(t[k], _poses(fused)[k], legs[k], bones[k], suit[k], feet[k]) for k in range(len(t))]
+    alone = SceneOptimiser(config)
+    expected = []
+    for frame in frames:
+        alone.add(*frame)
+        if alone.full:
+            expected.append(alone.optimise(ground)[0])
+    live = BackgroundOptimiser(SceneOptimiser(config))
+    assert live.sole_m is None and not live.start(ground)  # nothing waiting
+    for k in range(30):
+        assert live.add(k, *frames[k]) == []
+    gate = _GatedMap(ground)
+    assert live.start(gate) and live.busy and not live.start(ground)  # one solve at a time
+    for k in range(30, 75):  # the solve waits at the gate: the frames wait beside the optimiser
+        assert live.add(k, *frames[k]) == []
+    assert live.collect() is None and len(live) == 75
+    with pytest.raises(RuntimeError, match="being solved"):
+        live.drop(1)
+    gate.open.set()
+    first = live.collect(wait=True)
+    assert first.records == list(range(30)) and first.error is None and first.points is gate and first.seconds > 0
+    assert np.allclose(first.result.t, expected[0].t) and live.sole_m == alone.sole_m and not live.busy
+    solved = [first]
+    for k in range(75, len(t)):
+        live.add(k, *frames[k])
+        while live.start(ground):
+            solved.append(live.collect(wait=True))
+    assert [s.records for s in solved] == [list(range(30 * w, 30 * w + 30)) for w in range(3)]
+    assert all(np.allclose(s.result.feet, e.feet) for s, e in zip(solved, expected, strict=True))
+    assert live.start(ground, flush=True) and live.collect(wait=True).records == list(range(90, 100))
+    assert len(live) == 0 and live.collect() is None
+
+
+def test_a_window_solved_on_a_thread_that_finds_no_ground_keeps_its_frames(walk):
+    """No ground under the first window's feet: the answer comes back, the frames wait on; a failure of any other
+    kind comes back with the window's frames, dropped; more than four windows coming in meanwhile drop the oldest
+    (and those before them: a gap)."""
+    t, pelvis, feet, stance, fused, suit, ground = walk
+    config = replace(SceneOptimisationConfig(), window=10)
+    legs, bones = _legs(feet - pelvis[:, None])
+    frames = [(t[k], _poses(fused)[k], legs[k], bones[k], suit[k], feet[k]) for k in range(len(t))]
+    live = BackgroundOptimiser(SceneOptimiser(config))
+    for k in range(12):
+        live.add(k, *frames[k])
+    assert live.start(np.zeros((0, 3)))
+    refused = live.collect(wait=True)
+    assert refused.records == [] and isinstance(refused.error, ValueError) and len(live) == 12
+    gate = _GatedMap(ground, RuntimeError("a bug"))
+    assert live.start(gate)
+    for k in range(12, 30):
+        live.add(k, *frames[k])
+    gate.open.set()
+    failed = live.collect(wait=True)
+    assert isinstance(failed.error, RuntimeError) and failed.result is None and failed.records == list(range(10))
+    assert not live.busy and len(live) == 20 and failed.dropped == []  # the frames beside joined
+    gate = _GatedMap(ground)
+    assert live.start(gate)
+    for k in range(30, 30 + 45):
+        live.add(k, *frames[k])
+    gate.open.set()
+    solved = live.collect(wait=True)
+    # the solve took 10-19; 20-29 waited in the optimiser; of the 45 beside, the oldest 5 went, and those before
+    assert solved.records == list(range(10, 20)) and solved.fell_behind == list(range(20, 35)) and not solved.dropped
+    assert len(live) == 40 and live.drop() == list(range(35, 75))
 
 
 def test_a_one_frame_window_at_the_end_gives_a_finite_pose(walk):

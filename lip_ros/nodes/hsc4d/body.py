@@ -24,6 +24,9 @@ its own ``/mocap/odometry``: which foot stands); once the window is full it is
 optimised on the latest ``/hsc4d/map`` and published, frame by frame with their
 own stamps, on ``/hsc4d/optimised/odometry`` and ``/hsc4d/optimised/{joint_states,
 root_pose,joint_poses}`` (one window, 10 s at 10 Hz, behind the fused output).
+Each window is solved on a thread of its own
+(:class:`lip_ros.hsc4d.background_optimiser.BackgroundOptimiser`): the node
+goes on taking the suit's samples and posing meanwhile.
 The first window also measures how high the foot joint stands
 above its sole, which needs the ground under the standing feet in the map
 (points near a standing foot, ``SceneOptimisationConfig.support_radius_m``,
@@ -65,6 +68,7 @@ import time
 from collections import Counter, deque
 from dataclasses import dataclass, replace
 from pathlib import Path
+from traceback import format_exception
 from typing import Any
 
 import numpy as np
@@ -87,8 +91,9 @@ from lip_ros.core.clock import SteppingClock, stepped_back
 from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_runtime import set_threads
+from lip_ros.hsc4d.background_optimiser import BackgroundOptimiser
 from lip_ros.hsc4d.resume import TrajectoryResume, load_resume, resume_refusal
-from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser
+from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser, WindowResult
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
 from lip_ros.hsc4d.suit_body import (
     FEET,
@@ -210,9 +215,9 @@ class BodyNode(GraphNode):
         if p["optimise_window"]:
             set_threads(p["optimise_threads"])
             # the optimised body's legs take their length from the walk unless the body's size is given
-            self._optimiser = SceneOptimiser(replace(SceneOptimisationConfig(), window=p["optimise_window"],
-                                                     legs_from_walk=self._scale_from_height))
-            self._window: list[tuple[int, str, BodyPose, np.ndarray]] = []  # the frames in the optimiser
+            # its windows solved on a thread of their own; each frame's record: (stamp, frame_id, body, T_map_P)
+            self._optimiser = BackgroundOptimiser(SceneOptimiser(replace(
+                SceneOptimisationConfig(), window=p["optimise_window"], legs_from_walk=self._scale_from_height)))
             self._feet = [self.body.skeleton.index(f) for f in FEET]
             self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
             self._suit_poses: deque[np.ndarray] = deque(maxlen=self.body.config.capacity)
@@ -259,7 +264,7 @@ class BodyNode(GraphNode):
             self.get_logger().warning(f"map not used: {exc}", throttle_duration_sec=5.0)
             self._not_optimised["optimisation: maps not used, malformed"] += 1
             return
-        self._optimise()  # a window may be waiting for it
+        self._solve()  # a window may be waiting for it
 
     def _on_suit_odometry(self, msg: Odometry) -> int:
         odometry = msg_to_odometry(msg)
@@ -289,10 +294,10 @@ class BodyNode(GraphNode):
         while self._waiting:
             self._pose(self._waiting.popleft())
         if self._optimiser is not None:
-            self._optimise(flush=True)
+            self._solve(flush=True, wait=True)
             if len(self._optimiser):
                 self._skip(None, "a new capture began")
-            self._optimiser = SceneOptimiser(self._optimiser.config)
+            self._optimiser = BackgroundOptimiser(SceneOptimiser(self._optimiser.optimiser.config))
             self._map = self._map_failed = None
         self._scale_from_height = self.params["body_scale"] == 0
         self._new_capture = None
@@ -318,54 +323,56 @@ class BodyNode(GraphNode):
         if suit is None:
             self._not_optimised["optimisation skipped: no suit odometry near the frame"] += 1
             return
-        optimiser = self._optimiser
-        if len(optimiser) >= optimiser.capacity:  # the oldest window waited in vain as long as it may
-            self._skip(optimiser.config.window, "no map yet" if self._map is None else "no ground under the feet of "
-                       "the first window (no sole height)")
-        optimiser.add(line_ns * 1e-9, T_map_P, *leg_chains(self.body.skeleton, pose.local_rot), T_suit[:3, 3],
-                      suit.joints[self._feet])
-        self._window.append((stamp_ns, frame_id, pose, T_map_P))
-        if optimiser.full:
-            self._optimise()
+        dropped = self._optimiser.add((stamp_ns, frame_id, pose, T_map_P), line_ns * 1e-9, T_map_P,
+                                      *leg_chains(self.body.skeleton, pose.local_rot), T_suit[:3, 3],
+                                      suit.joints[self._feet])
+        self._count_skipped(len(dropped), self._waiting_reason())
+        self._solve()
+
+    def _waiting_reason(self) -> str:
+        """Why frames waited for the optimisation in vain: no map, or no ground under the first window's feet."""
+        return "no map yet" if self._map is None else "no ground under the feet of the first window (no sole height)"
 
     def _skip(self, n: int | None, reason: str) -> None:
         """Drop the oldest ``n`` frames waiting for the optimisation (None: all), counted."""
-        n = self._optimiser.drop(n)
-        del self._window[:n]
-        self._not_optimised[f"optimisation skipped: {reason}"] += n
-        self.get_logger().warning(f"{n} frames not optimised: {reason}")
+        self._count_skipped(len(self._optimiser.drop(n)), reason)
 
-    def _optimise(self, flush: bool = False) -> None:
-        """Optimise and publish the windows waiting (``flush``: the partial one too). Without a map, or before a
-        map shows the ground under the first window's feet, they wait for a later map (at most a window)."""
-        while self._optimiser.full or (flush and len(self._optimiser)):
+    def _count_skipped(self, n: int, reason: str) -> None:
+        if n:
+            self._not_optimised[f"optimisation skipped: {reason}"] += n
+            self.get_logger().warning(f"{n} frames not optimised: {reason}")
+
+    def _solve(self, flush: bool = False, wait: bool = False) -> None:
+        """Publish the window solved, if one is (``wait``: wait for it, and for each one after), and start solving
+        the next if a whole one waits (``flush``: a partial one too). Without a map, or before a map shows the
+        ground under the first window's feet, they wait for a later map (at most a window). The windows are solved
+        on a thread of their own: the node goes on taking the suit's samples and posing meanwhile."""
+        optimiser = self._optimiser
+        while True:
+            solved = optimiser.collect(wait)
+            if solved is not None:
+                self._window_latency.add(solved.seconds)
+                if isinstance(solved.error, ValueError):
+                    self._map_failed = solved.points
+                    self.get_logger().info(f"optimisation waits for a later map: {solved.error}")
+                elif solved.error is not None:  # a bug: the node goes on, the window's frames counted
+                    self.get_logger().error(f"optimisation failed: {''.join(format_exception(solved.error))}")
+                    self._count_skipped(len(solved.records), f"failed ({type(solved.error).__name__})")
+                else:
+                    self._publish_optimised(solved.records, solved.result)
+                self._count_skipped(len(solved.dropped), self._waiting_reason())
+                self._count_skipped(len(solved.fell_behind), "the optimisation fell behind")
             if self._map is None or self._map is self._map_failed:  # tried this map already
                 return
-            start = time.monotonic()
-            try:
-                result = self._optimiser.optimise(self._map)[0]
-            except ValueError as exc:
-                self._map_failed = self._map
-                self.get_logger().info(f"optimisation waits for a later map: {exc}")
+            if not optimiser.start(self._map, flush) or not wait:
                 return
-            finally:
-                self._held_for(time.monotonic() - start)
-            self._window_latency.add(time.monotonic() - start)
-            self._publish_optimised(result.t, result.R, result.legs, result.leg_ratio)
 
-    def _held_for(self, seconds: float) -> None:
-        """This callback held the node for ``seconds``: the suit's samples could not come in meanwhile, so the poses
-        waiting for them wait that much longer, rather than go on with a gap the samples still queued would fill (a
-        CI run lost 2 poses to "suit data missing" right after the first window)."""
-        for fused in self._waiting:
-            fused.deadline += seconds
-        self._arrived = {segment: at + seconds for segment, at in self._arrived.items()}
-
-    def _publish_optimised(self, t: np.ndarray, R: np.ndarray, legs: np.ndarray, leg_ratio: float) -> None:
-        """The optimised pelvis (N, 3), (N, 3, 3) and legs (N, 2, 3, 3, 3) of the oldest N frames waiting: the body
-        turned about its pelvis with it, on those legs, ``leg_ratio`` times its size (the legs' length from the
-        walk)."""
-        for k, (stamp_ns, frame_id, pose, T) in enumerate(self._window[: len(t)]):
+    def _publish_optimised(self, records: list[tuple[int, str, BodyPose, np.ndarray]], result: WindowResult) -> None:
+        """The optimised pelvis and legs of the frames of ``records`` (stamp, frame, body, fused pelvis pose): the
+        body turned about its pelvis with it, on those legs, at the size the window was solved at (the legs' length
+        from the walk)."""
+        t, R, legs, leg_ratio = result.t, result.R, result.legs, result.leg_ratio
+        for k, (stamp_ns, frame_id, pose, T) in enumerate(records):
             T_opt = np.eye(4)
             T_opt[:3, :3], T_opt[:3, 3] = R[k], t[k]
             moved = resized_body(bent_legs(moved_body(pose, T, T_opt), self.body.skeleton, legs[k]), leg_ratio)
@@ -375,7 +382,6 @@ class BodyNode(GraphNode):
                                        moved.glob_rot, moved.joints).items():
                 self._opt_out[topic].publish(raw)
         self._optimised += len(t)
-        del self._window[: len(t)]
 
     def _on_offset(self, msg: Int64) -> None:
         self._offset_ns = int(msg.data)
@@ -439,12 +445,11 @@ class BodyNode(GraphNode):
         the last partial window once no pose came for ``optimise_flush_s``."""
         self.take_polled()
         now = time.monotonic()
-        if (self._optimiser is not None and len(self._optimiser) and not self._waiting
-                and now - self._last_pose_at >= self.params["optimise_flush_s"]):
-            self._optimise(flush=True)
-            if len(self._optimiser):  # no map, or no ground under the first window's feet, by the end
-                self._skip(None, "no map yet" if self._map is None else "no ground under the feet of the first "
-                           "window (no sole height)")
+        if self._optimiser is not None:
+            flush = not self._waiting and now - self._last_pose_at >= self.params["optimise_flush_s"]
+            self._solve(flush=flush)
+            if flush and len(self._optimiser) and not self._optimiser.busy:
+                self._skip(None, self._waiting_reason())  # no map, or no ground under the first window's feet
         while self._waiting:
             fused = self._waiting[0]
             if self._offset_ns is not None:
@@ -517,7 +522,7 @@ class BodyNode(GraphNode):
         if self._optimiser is None:
             return {"optimisation": "off"}
         sole, ratio = self._optimiser.sole_m, self._optimiser.leg_ratio
-        return {"optimisation: frames optimised": self._optimised, "optimisation: frames waiting": len(self._window),
+        return {"optimisation: frames optimised": self._optimised, "optimisation: frames waiting": len(self._optimiser),
                 "optimisation: sole height (m)": "unknown" if sole is None else f"{sole:.3f}",
                 "optimisation: body scale (legs from the walk)": f"{self.body.skeleton.scale * ratio:.3f}",
                 **dict(self._not_optimised), **self._window_latency.values("optimisation_ms")}

@@ -10,8 +10,8 @@ which measured here starved the trajectory node of a third of its suit samples
 and put its latency past a second (docs/hsc4d/graph.md). The child is stopped
 with this process; if it ends on its own (e.g. a bad parameter), so does the
 graph, with its exit status; if this process is killed, the child gets SIGTERM
-(:func:`lip_ros.children.start_child`) and stops too. The scene-aware
-optimisation is not a node yet.
+(:func:`lip_ros.children.start_child`) and stops too. The body node also runs
+the scene-aware optimisation, each window on a thread of its own.
 """
 
 from __future__ import annotations
