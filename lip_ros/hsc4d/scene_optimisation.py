@@ -47,7 +47,7 @@ from lip_ros.hsc4d.leg_scale import LegScale, LegScaleConfig, standing_steps
 
 __all__ = ["SceneOptimisationConfig", "WindowInput", "WindowResult", "TERMS", "stance_from_suit",
            "fit_foot_planes", "leg_offsets", "feet_offsets", "optimise_window", "without", "SequenceResult",
-           "sole_height", "SceneOptimiser", "optimise_sequence", "walk_leg_ratio", "MAX_WAIT_WINDOWS"]
+           "sole_height", "SceneOptimiser", "optimise_sequence", "walk_leg_ratio", "MAX_WAIT_WINDOWS", "NoGroundYet"]
 
 #: the loss terms, in report order
 TERMS = ("contact", "sliding", "orientation", "smoothness", "prior", "pose")
@@ -55,6 +55,11 @@ TERMS = ("contact", "sliding", "orientation", "smoothness", "prior", "pose")
 
 #: the bound on the frames waiting for the first window's ground, in windows
 MAX_WAIT_WINDOWS = 4
+
+
+class NoGroundYet(ValueError):
+    """The sole height is still unknown and no standing foot of the first window has the ground mapped under it:
+    its frames wait for a later map."""
 
 
 @dataclass(frozen=True)
@@ -432,8 +437,9 @@ class SceneOptimiser:
     def optimise(self, points: np.ndarray) -> tuple[WindowResult, np.ndarray, np.ndarray]:
         """Optimise the oldest window of frames waiting (or all of them, if fewer: the end of a capture) on the
         map's ``points`` (M, 3) in ``map``: the result for those frames, which foot stood (N, 2) and the planes
-        under them (N, 2, 4). ValueError without frames, or when the sole height is still unknown and no standing
-        foot has the ground mapped under it (the frames are kept: try again with a later map, or drop them)."""
+        under them (N, 2, 4). ValueError without frames; :class:`NoGroundYet` when the sole height is still unknown
+        and no standing foot has the ground mapped under it (the frames are kept: try again with a later map, or drop
+        them)."""
         if not self._frames:
             raise ValueError("no frames to optimise")
         c = self.config
@@ -451,7 +457,7 @@ class SceneOptimiser:
         if self.sole_m is None:
             ok = stance & supported
             if not ok.any():
-                raise ValueError(f"no standing foot with the ground mapped under it: no sole height yet "
+                raise NoGroundYet(f"no standing foot with the ground mapped under it: no sole height yet "
                                  f"({int(stance.sum())} standing feet in {len(t_s)} frames, {len(points)} map "
                                  f"points)")
             self._sole_seen = (t0[np.nonzero(ok)[0]], offsets[ok], planes[ok])
@@ -501,7 +507,7 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bon
         while optimiser.full or (last and len(optimiser)):
             try:
                 result, st, pl = optimiser.optimise(map_at(k))
-            except ValueError:
+            except NoGroundYet:
                 if len(optimiser) < optimiser.capacity and not last:
                     break  # the first window waits for a map with the ground under its feet, as the node's does
                 if optimiser.sole_m is None and last:
@@ -515,7 +521,7 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bon
             windows.append(result)
             done = w.stop
     if optimiser.sole_m is None:
-        raise ValueError("no standing foot with the ground mapped under it: no sole height")
+        raise NoGroundYet("no standing foot with the ground mapped under it: no sole height")
     return SequenceResult(out_pelvis, out_legs, out_feet, stance, planes, float(optimiser.sole_m), windows, ratio)
 
 

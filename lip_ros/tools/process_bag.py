@@ -81,7 +81,7 @@ from lip_ros.hsc4d.sensors import (
 )
 from lip_ros.lip.calibration import load_calibration
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
-from lip_ros.nodes.hsc4d import MOUNT_HIP_VALUE, MOUNT_SPIN_VALUE, OFFSET_VALUE
+from lip_ros.nodes.hsc4d import MOUNT_HIP_VALUE, MOUNT_SPIN_VALUE, OFFSET_VALUE, OPTIMISING_VALUE
 from lip_ros.nodes.lip import CALIBRATION_NODE_NAME, DOT_LATENCY_VALUE
 from lip_ros.outputs import GT_TOPICS
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
@@ -101,10 +101,6 @@ __all__ = ["main", "ProcessSummary", "summarize_outputs", "Branch", "LIP", "HSC4
 MATCH_NS = 1_000_000  # an output and a truth pose are the same moment if their stamps are this close
 CALIBRATION_FRAMES = f"{CALIBRATION_NODE_NAME}: frames"  # ... with the DOT latencies
 CATCH_UP_PREFIX = "catch_up_latency_ms_"  # ... its latency of the sweeps that waited behind the backlog
-#: after every frame is accounted for, how long the HSC4D graph may take to settle: the last sweep waiting for the
-#: suit (1 s) in the trajectory node, then on its way to the body node, waiting there (1 s), the partial window
-#: flushed (1 s) and optimised
-_SETTLE_WAIT_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -189,6 +185,7 @@ class ProcessSummary:
     mounting: str = ""  # HSC4D: what the checks of the hip LiDAR's mounting at the start found
     catch_up_ms: dict[str, float] = field(default_factory=dict)  # HSC4D: latency of sweeps behind the backlog
     refinement: str = ""  # HSC4D --refine: what and how fast
+    optimising: int = 0  # HSC4D: frames still waiting for the scene-aware optimisation when the graph was stopped
 
     def lines(self) -> list[str]:
         """Human-readable report."""
@@ -209,6 +206,9 @@ class ProcessSummary:
             out.append(f"suit clock offset found from the jump: {self.offset_ms} ms")
         if self.mounting:
             out.append(f"hip LiDAR's mounting checked at the start: {self.mounting}")
+        if self.optimising:
+            out.append(f"scene-aware optimisation: {self.optimising} frames still waiting when the graph was stopped "
+                       "(not published; --timeout waits longer for the last window)")
         if self.refinement:
             out.append(self.refinement)
         if self.hsc4d is not None:
@@ -268,6 +268,7 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined
                                                                                ("hip:", MOUNT_HIP_VALUE))
                                      if key in checks)
         summary.catch_up_ms = _percentiles(last[branch.latency_status], CATCH_UP_PREFIX)
+        summary.optimising = sum(int(v.get(OPTIMISING_VALUE, 0)) for v in last.values())
         summary.hsc4d = hsc4d_accuracy(inputs, outputs, round(float(offset) * 1e6) if summary.offset_ms else None,
                                        refined)
         return summary
@@ -368,8 +369,8 @@ class _Watch:
                 self._counts[s.name] = sum(int(v) for k, v in s.values.items()
                                            if k.startswith("frames ") or k == "pending")
                 self._pending[s.name] = int(s.values.get("pending", 0))
-                if "optimisation: frames waiting" in s.values:
-                    self.optimising = int(s.values["optimisation: frames waiting"])
+                if OPTIMISING_VALUE in s.values:
+                    self.optimising = int(s.values[OPTIMISING_VALUE])
         self.accounted = sum(self._counts.values())
         self.pending = sum(self._pending.values())
 
@@ -436,7 +437,9 @@ def _run(argv: list[str]) -> int:
                         "topic: its poses and its LiDAR input's counts on /diagnostics), at most at --rate; without "
                         "it the bag plays as the sensors would, and a graph that falls behind loses clouds")
     p.add_argument("--plot", type=Path, help="write a PNG of the trajectory (and skeleton frames or the map) here")
-    p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the last frames after playback")
+    p.add_argument("--timeout", type=float, default=30.0,
+                   help="seconds to wait for the last frames after playback, and then (HSC4D) for the graph to settle: "
+                        "the last sweeps on their way to the body node, its last optimisation window")
     p.add_argument("--refine", action="store_true",
                    help="HSC4D: also run the offline refinement and record it to the bag OUT_refined")
     p.add_argument("--calibration", type=Path,
@@ -494,7 +497,9 @@ def _run(argv: list[str]) -> int:
         def settled() -> bool:  # HSC4D: the last sweep may be pending in one node and on its way to the next
             return watch.optimising == 0 and (branch is LIP or (watch.pending == 0 and watch.accounted >= frames_in))
 
-        watch.spin_while(lambda: not settled() and node.poll() is None, _SETTLE_WAIT_S)
+        # HSC4D: the last sweep waiting for the suit (1 s) in the trajectory node, then on its way to the body node,
+        # waiting there (1 s), the partial window flushed (1 s) and optimised (seconds; tens on a starved machine)
+        watch.spin_while(lambda: not settled() and node.poll() is None, args.timeout)
         if not stop.is_set():
             time.sleep(1.0)  # one more diagnostics period reaches the recorder
     finally:

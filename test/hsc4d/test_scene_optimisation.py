@@ -12,6 +12,7 @@ from lip_ros.hsc4d.background_optimiser import BackgroundOptimiser
 from lip_ros.hsc4d.leg_scale import LegScale, standing_steps
 from lip_ros.hsc4d.scene_optimisation import (
     TERMS,
+    NoGroundYet,
     SceneOptimisationConfig,
     SceneOptimiser,
     feet_offsets,
@@ -375,8 +376,8 @@ class _GatedMap:
 
 def test_windows_solved_on_a_thread_leave_the_owner_free_and_give_the_same_result(walk):
     """The body node's optimiser: while a window is solved (held here until the test lets it go), frames go on
-    coming in and wait beside it; once collected they join, and every window comes out as the optimiser alone
-    solves it, each frame's record with it."""
+    coming in and wait beside the optimiser; once collected they join, and every window comes out as the optimiser
+    alone solves it, each frame's record with it."""
     t, pelvis, feet, stance, fused, suit, ground = walk
     config = replace(SceneOptimisationConfig(), window=30)
     legs, bones = _legs(feet - pelvis[:, None])
@@ -388,62 +389,80 @@ def test_windows_solved_on_a_thread_leave_the_owner_free_and_give_the_same_resul
         if alone.full:
             expected.append(alone.optimise(ground)[0])
     live = BackgroundOptimiser(SceneOptimiser(config))
-    assert live.sole_m is None and not live.start(ground)  # nothing waiting
     for k in range(30):
         assert live.add(k, *frames[k]) == []
+    assert live.sole_m is None and live.waits_for_map and not live.start()  # no map yet
     gate = _GatedMap(ground)
-    assert live.start(gate) and live.busy and not live.start(ground)  # one solve at a time
+    live.map = gate
+    assert live.start() and live.busy and not live.start()  # one solve at a time
     for k in range(30, 75):  # the solve waits at the gate: the frames wait beside the optimiser
         assert live.add(k, *frames[k]) == []
-    assert live.collect() is None and len(live) == 75
+    assert live.collect() is None and len(live) == 75 and live.beside == 45
     with pytest.raises(RuntimeError, match="being solved"):
         live.drop(1)
     gate.open.set()
     first = live.collect(wait=True)
-    assert first.records == list(range(30)) and first.error is None and first.points is gate and first.seconds > 0
-    assert np.allclose(first.result.t, expected[0].t) and live.sole_m == alone.sole_m and not live.busy
+    assert first.records == list(range(30)) and first.error is None and first.seconds > 0 and not live.busy
+    assert np.allclose(first.result.t, expected[0].t) and live.sole_m == alone.sole_m and live.beside == 0
     solved = [first]
+    live.map = ground
     for k in range(75, len(t)):
         live.add(k, *frames[k])
-        while live.start(ground):
+        while live.start():
             solved.append(live.collect(wait=True))
     assert [s.records for s in solved] == [list(range(30 * w, 30 * w + 30)) for w in range(3)]
     assert all(np.allclose(s.result.feet, e.feet) for s, e in zip(solved, expected, strict=True))
-    assert live.start(ground, flush=True) and live.collect(wait=True).records == list(range(90, 100))
+    assert live.start(flush=True) and live.collect(wait=True).records == list(range(90, 100))
     assert len(live) == 0 and live.collect() is None
 
 
 def test_a_window_solved_on_a_thread_that_finds_no_ground_keeps_its_frames(walk):
-    """No ground under the first window's feet: the answer comes back, the frames wait on; a failure of any other
-    kind comes back with the window's frames, dropped; more than four windows coming in meanwhile drop the oldest
-    (and those before them: a gap)."""
+    """No ground under the first window's feet: the answer comes back, the frames wait for a later map (any map
+    but that one); a failure of any other kind comes back with the window's frames, dropped; frames beyond what
+    the optimiser holds drop its oldest window as they join, beyond four windows beside it the oldest of them (and
+    those before: a gap)."""
     t, pelvis, feet, stance, fused, suit, ground = walk
-    config = replace(SceneOptimisationConfig(), window=10)
+    config = replace(SceneOptimisationConfig(), window=10, max_wait_s=0.0)  # the optimiser holds 20 frames
     legs, bones = _legs(feet - pelvis[:, None])
     frames = [(t[k], _poses(fused)[k], legs[k], bones[k], suit[k], feet[k]) for k in range(len(t))]
     live = BackgroundOptimiser(SceneOptimiser(config))
     for k in range(12):
         live.add(k, *frames[k])
-    assert live.start(np.zeros((0, 3)))
+    live.map = np.zeros((0, 3))
+    assert live.start()
     refused = live.collect(wait=True)
-    assert refused.records == [] and isinstance(refused.error, ValueError) and len(live) == 12
-    gate = _GatedMap(ground, RuntimeError("a bug"))
-    assert live.start(gate)
+    assert refused.records == [] and isinstance(refused.error, NoGroundYet) and len(live) == 12
+    assert live.waits_for_map and not live.start()  # not on the same map again
+    live.map = refusing = _GatedMap(np.zeros((0, 3)))  # a new map, whatever its points: tried
+    assert live.start()
+    live.map = _GatedMap(ground, np.linalg.LinAlgError("SVD did not converge"))  # another comes meanwhile
+    refusing.open.set()
+    assert isinstance(live.collect(wait=True).error, NoGroundYet) and not live.waits_for_map  # the later one is tried
+    assert live.start()
     for k in range(12, 30):
         live.add(k, *frames[k])
-    gate.open.set()
-    failed = live.collect(wait=True)
-    assert isinstance(failed.error, RuntimeError) and failed.result is None and failed.records == list(range(10))
+    live.map.open.set()
+    failed = live.collect(wait=True)  # a ValueError, but not the optimiser's refusal: a failure
+    assert isinstance(failed.error, np.linalg.LinAlgError) and failed.result is None
+    assert failed.records == list(range(10))
     assert not live.busy and len(live) == 20 and failed.dropped == []  # the frames beside joined
-    gate = _GatedMap(ground)
-    assert live.start(gate)
-    for k in range(30, 30 + 45):
+    live.map = _GatedMap(ground)
+    assert live.start()  # 10-19; 20-29 wait in the optimiser
+    for k in range(30, 42):
         live.add(k, *frames[k])
-    gate.open.set()
+    live.map.open.set()
+    solved = live.collect(wait=True)  # 30-41 join 20-29: at 20 frames the oldest window goes
+    assert solved.records == list(range(10, 20)) and solved.dropped == list(range(20, 30)) and len(live) == 12
+    live.map = _GatedMap(ground)
+    assert live.start()  # 30-39; 40-41 wait in the optimiser
+    for k in range(42, 42 + 45):
+        live.add(k, *frames[k])
+    assert live.beside == 40
+    live.map.open.set()
+    # of the 45 beside, the oldest 5 went, and those before them; of the 40 that join, the oldest two windows go
     solved = live.collect(wait=True)
-    # the solve took 10-19; 20-29 waited in the optimiser; of the 45 beside, the oldest 5 went, and those before
-    assert solved.records == list(range(10, 20)) and solved.fell_behind == list(range(20, 35)) and not solved.dropped
-    assert len(live) == 40 and live.drop() == list(range(35, 75))
+    assert solved.records == list(range(30, 40)) and solved.dropped == list(range(40, 67))
+    assert len(live) == 20 and live.drop() == list(range(67, 87))
 
 
 def test_a_one_frame_window_at_the_end_gives_a_finite_pose(walk):

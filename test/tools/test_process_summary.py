@@ -13,3 +13,11 @@ def test_frames_not_accounted_for_say_whether_the_graph_received_their_clouds():
     held = ProcessSummary(10, {"pose": 8, "skipped: malformed cloud": 1}, 10).lines()[0]
     assert held.endswith("not accounted for 1 (every cloud was received)")
     assert ProcessSummary(10, {"pose": 9}).lines()[0].endswith("not accounted for 1")
+
+
+def test_frames_still_waiting_for_the_optimisation_at_the_end_are_reported():
+    """HSC4D: a window still being solved when the graph was stopped is said, not left for the reader to find in
+    the count of optimised poses."""
+    assert not any("still waiting" in line for line in ProcessSummary(10, {"pose": 10}, 10).lines())
+    line = next(line for line in ProcessSummary(10, {"pose": 10}, 10, optimising=7).lines() if "still" in line)
+    assert line.startswith("scene-aware optimisation: 7 frames still waiting when the graph was stopped")

@@ -11,6 +11,8 @@ HSC4D_PARAMS_FILE = "hsc4d.yaml"
 OFFSET_VALUE = "suit clock offset (ms)"
 MOUNT_SPIN_VALUE = "mounting's spin (the ground at the start)"
 MOUNT_HIP_VALUE = "mounting's hip (the wearer's body at the start)"
+#: ... and of ``hsc4d_body_node``'s: the frames waiting for the scene-aware optimisation
+OPTIMISING_VALUE = "optimisation: frames waiting"
 #: QoS of the fused odometry, published by the trajectory node and read by the body node in another process: after
 #: the jump the poses of the sweeps held for it come 40-60 a second while the body node may be a second and a half
 #: in its first optimisation (reliable with a history of 50 lost 12 poses at 20 Hz); both ends keep 200

@@ -56,10 +56,10 @@ on its time line, the last capture's poses still coming are posed as before,
 and the new capture's first fused pose (behind the last one, or the first after
 the new capture's offset) is put on the suit's time line
 (:meth:`lip_ros.core.clock.SteppingClock.realign`: the new offset holds
-between the two clocks' stamps); before it, the last window is optimised with
-what there is, and the optimiser (its sole height, the map) and the body's
-scale start again. The maps that come between are not used (which capture's
-is not known).
+between the two clocks' stamps); there the optimiser (its sole height, the map)
+and the body's scale start again, while the last capture's optimiser solves
+its last windows with what there is on its last map, as the drain comes round.
+The maps that come between are not used (which capture's is not known).
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_runtime import set_threads
 from lip_ros.hsc4d.background_optimiser import BackgroundOptimiser
 from lip_ros.hsc4d.resume import TrajectoryResume, load_resume, resume_refusal
-from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, SceneOptimiser, WindowResult
+from lip_ros.hsc4d.scene_optimisation import NoGroundYet, SceneOptimisationConfig, SceneOptimiser, WindowResult
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
 from lip_ros.hsc4d.suit_body import (
     FEET,
@@ -121,12 +121,13 @@ from lip_ros.nodes.base import (
     run_nodes,
     suit_input,
 )
-from lip_ros.nodes.hsc4d import FUSED_ODOMETRY_QOS, HSC4D_PARAMS_FILE
+from lip_ros.nodes.hsc4d import FUSED_ODOMETRY_QOS, HSC4D_PARAMS_FILE, OPTIMISING_VALUE
 from lip_ros.nodes.hsc4d.trajectory import TrajectoryNode
 from lip_ros.outputs import pose_cdr
 
 __all__ = ["BodyNode", "main"]
 
+_SOLVE_STOP_WAIT_S = 5.0  # at shutdown, how long to wait for an optimisation window being solved
 _POSE_TYPES = (("joint_states", "sensor_msgs/msg/JointState"), ("root_pose", "geometry_msgs/msg/PoseStamped"),
                ("joint_poses", "geometry_msgs/msg/PoseArray"))
 
@@ -214,15 +215,14 @@ class BodyNode(GraphNode):
         self._optimiser = None
         if p["optimise_window"]:
             set_threads(p["optimise_threads"])
-            # the optimised body's legs take their length from the walk unless the body's size is given
-            # its windows solved on a thread of their own; each frame's record: (stamp, frame_id, body, T_map_P)
+            # the optimised body's legs take their length from the walk unless the body's size is given; its
+            # windows solved on a thread of their own; each frame's record: (stamp, frame_id, body, T_map_P)
             self._optimiser = BackgroundOptimiser(SceneOptimiser(replace(
                 SceneOptimisationConfig(), window=p["optimise_window"], legs_from_walk=self._scale_from_height)))
+            self._closing: list[BackgroundOptimiser] = []  # the last captures': their last windows being solved
             self._feet = [self.body.skeleton.index(f) for f in FEET]
             self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
             self._suit_poses: deque[np.ndarray] = deque(maxlen=self.body.config.capacity)
-            self._map: np.ndarray | None = None
-            self._map_failed: np.ndarray | None = None  # the map the first window found no ground under its feet in
             self._last_pose_at = time.monotonic()
             self._optimised = 0
             self._not_optimised: Counter[str] = Counter()
@@ -249,6 +249,15 @@ class BodyNode(GraphNode):
         self.create_timer(POLL_PERIOD_S, self._drain, self.group, clock=self.steady)
         self.get_logger().info("ready; waiting for the trajectory node's fused poses")
 
+    def destroy_node(self) -> None:
+        """Wait a while for an optimisation window being solved (a thread left in torch as the interpreter shuts
+        down may abort the process), then destroy the node."""
+        if self._optimiser is not None:
+            deadline = time.monotonic() + _SOLVE_STOP_WAIT_S
+            for live in (self._optimiser, *self._closing):
+                live.close(deadline)
+        super().destroy_node()
+
     def _pose_publishers(self, topics: Any) -> dict[str, Any]:
         """A reliable publisher per pose output of ``topics`` (a PoseTopics)."""
         return {getattr(topics, name): self.create_publisher(rclpy_message_class(msgtype), getattr(topics, name),
@@ -259,12 +268,12 @@ class BodyNode(GraphNode):
             self._not_optimised["optimisation: maps not used, a new capture began"] += 1
             return
         try:
-            self._map = cloud_to_xyz(msg).astype(np.float64)
+            self._optimiser.map = cloud_to_xyz(msg).astype(np.float64)
         except MalformedMessageError as exc:
             self.get_logger().warning(f"map not used: {exc}", throttle_duration_sec=5.0)
             self._not_optimised["optimisation: maps not used, malformed"] += 1
             return
-        self._solve()  # a window may be waiting for it
+        self._solve(self._optimiser)  # a window may be waiting for it
 
     def _on_suit_odometry(self, msg: Odometry) -> int:
         odometry = msg_to_odometry(msg)
@@ -288,17 +297,14 @@ class BodyNode(GraphNode):
         return odometry.stamp_ns
 
     def _first_of_new_capture(self, stamp_ns: int) -> int:
-        """The new capture's first fused pose (stamped ``stamp_ns``): pose the last capture's poses waiting and
-        optimise its last window with what there is, start the optimiser and the body's scale again; its time on
-        the suit's time line."""
+        """The new capture's first fused pose (stamped ``stamp_ns``): pose the last capture's poses waiting (its
+        optimiser solves its last windows with what there is on its last map, as the drain comes round), start the
+        optimiser and the body's scale again; its time on the suit's time line."""
         while self._waiting:
             self._pose(self._waiting.popleft())
         if self._optimiser is not None:
-            self._solve(flush=True, wait=True)
-            if len(self._optimiser):
-                self._skip(None, "a new capture began")
-            self._optimiser = BackgroundOptimiser(SceneOptimiser(self._optimiser.optimiser.config))
-            self._map = self._map_failed = None
+            self._closing.append(self._optimiser)
+            self._optimiser = BackgroundOptimiser(SceneOptimiser(self._optimiser.config))
         self._scale_from_height = self.params["body_scale"] == 0
         self._new_capture = None
         return self._lidar_clock.realign("fused odometry", stamp_ns, self._suit_clock.shift_ns)
@@ -323,49 +329,48 @@ class BodyNode(GraphNode):
         if suit is None:
             self._not_optimised["optimisation skipped: no suit odometry near the frame"] += 1
             return
-        dropped = self._optimiser.add((stamp_ns, frame_id, pose, T_map_P), line_ns * 1e-9, T_map_P,
-                                      *leg_chains(self.body.skeleton, pose.local_rot), T_suit[:3, 3],
-                                      suit.joints[self._feet])
-        self._count_skipped(len(dropped), self._waiting_reason())
-        self._solve()
+        live = self._optimiser
+        dropped = live.add((stamp_ns, frame_id, pose, T_map_P), line_ns * 1e-9, T_map_P,
+                           *leg_chains(self.body.skeleton, pose.local_rot), T_suit[:3, 3], suit.joints[self._feet])
+        self._count_skipped(len(dropped), self._drop_reason(live))
+        self._solve(live)
 
-    def _waiting_reason(self) -> str:
+    @staticmethod
+    def _waiting_reason(live: BackgroundOptimiser) -> str:
         """Why frames waited for the optimisation in vain: no map, or no ground under the first window's feet."""
-        return "no map yet" if self._map is None else "no ground under the feet of the first window (no sole height)"
+        return "no map yet" if live.map is None else "no ground under the feet of the first window (no sole height)"
 
-    def _skip(self, n: int | None, reason: str) -> None:
-        """Drop the oldest ``n`` frames waiting for the optimisation (None: all), counted."""
-        self._count_skipped(len(self._optimiser.drop(n)), reason)
+    def _drop_reason(self, live: BackgroundOptimiser) -> str:
+        """Why frames were dropped for want of room: they waited in vain, or (the sole height known) the windows
+        were solved slower than they came."""
+        return self._waiting_reason(live) if live.sole_m is None else "the optimisation fell behind"
+
+    def _skip(self, live: BackgroundOptimiser, reason: str) -> None:
+        """Drop every frame waiting in ``live``, counted."""
+        self._count_skipped(len(live.drop()), reason)
 
     def _count_skipped(self, n: int, reason: str) -> None:
         if n:
             self._not_optimised[f"optimisation skipped: {reason}"] += n
             self.get_logger().warning(f"{n} frames not optimised: {reason}")
 
-    def _solve(self, flush: bool = False, wait: bool = False) -> None:
-        """Publish the window solved, if one is (``wait``: wait for it, and for each one after), and start solving
-        the next if a whole one waits (``flush``: a partial one too). Without a map, or before a map shows the
-        ground under the first window's feet, they wait for a later map (at most a window). The windows are solved
-        on a thread of their own: the node goes on taking the suit's samples and posing meanwhile."""
-        optimiser = self._optimiser
-        while True:
-            solved = optimiser.collect(wait)
-            if solved is not None:
+    def _solve(self, live: BackgroundOptimiser, flush: bool = False) -> None:
+        """Publish ``live``'s window solved, if one is, and start solving its next if a whole one waits (``flush``:
+        a partial one too). Without a map, or before a map shows the ground under the first window's feet, they
+        wait for a later map (up to the optimiser's capacity). The windows are solved on a thread of their own:
+        the node goes on taking the suit's samples and posing meanwhile."""
+        solved = live.collect()
+        if solved is not None:
+            if isinstance(solved.error, NoGroundYet):
+                self.get_logger().info(f"optimisation waits for a later map: {solved.error}")
+            elif solved.error is not None:  # a bug: the node goes on, the window's frames counted
+                self.get_logger().error(f"optimisation failed: {''.join(format_exception(solved.error))}")
+                self._count_skipped(len(solved.records), f"failed ({type(solved.error).__name__})")
+            else:
                 self._window_latency.add(solved.seconds)
-                if isinstance(solved.error, ValueError):
-                    self._map_failed = solved.points
-                    self.get_logger().info(f"optimisation waits for a later map: {solved.error}")
-                elif solved.error is not None:  # a bug: the node goes on, the window's frames counted
-                    self.get_logger().error(f"optimisation failed: {''.join(format_exception(solved.error))}")
-                    self._count_skipped(len(solved.records), f"failed ({type(solved.error).__name__})")
-                else:
-                    self._publish_optimised(solved.records, solved.result)
-                self._count_skipped(len(solved.dropped), self._waiting_reason())
-                self._count_skipped(len(solved.fell_behind), "the optimisation fell behind")
-            if self._map is None or self._map is self._map_failed:  # tried this map already
-                return
-            if not optimiser.start(self._map, flush) or not wait:
-                return
+                self._publish_optimised(solved.records, solved.result)
+            self._count_skipped(len(solved.dropped), self._drop_reason(live))
+        live.start(flush)
 
     def _publish_optimised(self, records: list[tuple[int, str, BodyPose, np.ndarray]], result: WindowResult) -> None:
         """The optimised pelvis and legs of the frames of ``records`` (stamp, frame, body, fused pelvis pose): the
@@ -446,10 +451,17 @@ class BodyNode(GraphNode):
         self.take_polled()
         now = time.monotonic()
         if self._optimiser is not None:
+            live = self._optimiser
             flush = not self._waiting and now - self._last_pose_at >= self.params["optimise_flush_s"]
-            self._solve(flush=flush)
-            if flush and len(self._optimiser) and not self._optimiser.busy:
-                self._skip(None, self._waiting_reason())  # no map, or no ground under the first window's feet
+            self._solve(live, flush)
+            if flush and len(live) and not live.busy:  # no map, or no ground under the first window's feet
+                self._skip(live, self._waiting_reason(live))
+            for last in list(self._closing):  # the last captures' windows, with what there is
+                self._solve(last, flush=True)
+                if not last.busy:
+                    if len(last):  # no map, or no ground under its first window's feet
+                        self._skip(last, f"a new capture began, {self._waiting_reason(last)}")
+                    self._closing.remove(last)
         while self._waiting:
             fused = self._waiting[0]
             if self._offset_ns is not None:
@@ -522,7 +534,8 @@ class BodyNode(GraphNode):
         if self._optimiser is None:
             return {"optimisation": "off"}
         sole, ratio = self._optimiser.sole_m, self._optimiser.leg_ratio
-        return {"optimisation: frames optimised": self._optimised, "optimisation: frames waiting": len(self._optimiser),
+        waiting = len(self._optimiser) + sum(len(last) for last in self._closing)
+        return {"optimisation: frames optimised": self._optimised, OPTIMISING_VALUE: waiting,
                 "optimisation: sole height (m)": "unknown" if sole is None else f"{sole:.3f}",
                 "optimisation: body scale (legs from the walk)": f"{self.body.skeleton.scale * ratio:.3f}",
                 **dict(self._not_optimised), **self._window_latency.values("optimisation_ms")}
