@@ -103,7 +103,7 @@ def test_the_graph_split_over_two_hosts_gives_the_one_process_outputs(hosts: tup
                                                                       tmp_path: Path) -> None:
     a, b = hosts
     out = tmp_path / "outputs"
-    node_args = ["--ros-args", "-p", "use_sim_time:=true", "-p", "diagnostics_period_s:=0.5"]
+    node_args = ["--ros-args", "-p", "use_sim_time:=true", *LIP.node_args]  # paced as lip_process_bag paces LIP
     procs = []
     try:
         # host B first: its participants are there when A's announce themselves
@@ -115,7 +115,8 @@ def test_the_graph_split_over_two_hosts_gives_the_one_process_outputs(hosts: tup
                             f"calibration_file:={tmp_path / 'calibration.yaml'}"], b, tmp_path / "calibration.log"))
         sent_before = a.sent_bytes()
         player = a.run([console_script("lip_bag_play"), str(DEMO_BAG), "--clock", "--wait-for-subscribers",
-                        "--paced-by", LIP_TOPICS.root_pose, "--topics", *INPUT_TOPICS], b, tmp_path / "play.log")
+                        "--paced-by", LIP_TOPICS.root_pose, *LIP.pacing_args, "--topics", *INPUT_TOPICS], b,
+                       tmp_path / "play.log")
         procs.append(player)  # stopped with the others if it does not end by itself
         assert player.wait(timeout=120) == 0, (tmp_path / "play.log").read_text()[-2000:]
         time.sleep(3.0)  # the last frames through B and their diagnostics recorded
