@@ -31,7 +31,10 @@ error where the ground under the wearer is not at the start's level (stairs,
 ramps, the terrace) and the error at the end.
 
 The body: the suit's joints (:class:`~lip_ros.hsc4d.suit_body.SuitBody`) on each
-method's pelvis, scaled to the first fused pelvis height as the body node does.
+method's pelvis, scaled to the first fused pelvis height as the body node does;
+the live graph's, as the body node publishes it, at the legs' length from the
+walk from the frame after the window that first believes it on; the optimised
+and refined bodies' at the walk's too.
 :func:`body_metrics` reports, against the truth and under the same alignment,
 the checkpoint error (the foot joint at the middle of each true stance), the
 foot contact error (a standing foot's height above the true surface under it
@@ -113,8 +116,8 @@ class TrajectoryRun:
     true_mount: np.ndarray
     hand_eye: np.ndarray | None
     mount_checks: str
-    body_scales: dict[str, float]  #: the body's size over the contract's: "live" (height), "live_optimised"
-    #: (its last window's), "refined", "truth"
+    body_scales: dict[str, float]  #: the body's size over the contract's: "height" (the standing pelvis height's),
+    #: "live" (the live graph's at the last frame), "live_optimised" (its last window's), "refined", "truth"
 
 
 def capture_sweeps(capture: SiteCapture, refiner: CaptureRefiner) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
@@ -198,6 +201,9 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
     result = optimise_sequence(t_s, live.pelvis, *leg_chains(skeleton, live.body.local_rot),
                                live.suit_pelvis[:, :3, 3], live.suit_joints[:, feet],
                                lambda k: next(m for last, m in maps if last >= k), scene)
+    # the fused body as the body node publishes it: at the legs' length from the walk as of the windows solved
+    # before the frame came (less the half second a window takes to solve there)
+    joints["live"] = resized_body(live.body, result.arrival_leg_ratio).joints
     poses["live_optimised"] = result.pelvis
     joints["live_optimised"] = resized_body(bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton,
                                                       result.legs), result.leg_ratio).joints
@@ -216,7 +222,8 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                          refined.seconds, np.linalg.inv(pipeline.T_L_M), pipeline.config.mount.T_M_L,
                          capture.mount.T_M_L, pipeline.hand_eye.R_M_L,
                          f"spin: {pipeline.spin.status}; hip: {pipeline.side.status}",
-                         {"live": skeleton.scale, "live_optimised": skeleton.scale * float(result.leg_ratio[-1]),
+                         {"height": skeleton.scale, "live": skeleton.scale * float(result.arrival_leg_ratio[-1]),
+                          "live_optimised": skeleton.scale * float(result.leg_ratio[-1]),
                           "refined": skeleton.scale * refined.leg_ratio, "truth": capture.motion.skeleton.scale})
 
 

@@ -340,6 +340,9 @@ class SequenceResult:
     sole_m: float
     windows: list[WindowResult]
     leg_ratio: np.ndarray  #: (N,) each frame's :attr:`WindowResult.leg_ratio` (1 where left as fused)
+    #: (N,) :attr:`SceneOptimiser.leg_ratio` as each frame came, after the windows solved before it: the size a live
+    #: body node gives its fused body at that frame (less the time a window takes to solve)
+    arrival_leg_ratio: np.ndarray
 
 
 def sole_height(feet: np.ndarray, stance: np.ndarray, planes: np.ndarray) -> float:
@@ -498,10 +501,11 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bon
     out_feet = pelvis[:, None, :3, 3] + feet_offsets(pelvis[:, :3, :3], legs, bones)
     stance = np.zeros((len(t_s), 2), dtype=bool)
     planes = np.full((len(t_s), 2, 4), np.nan)
-    ratio = np.ones(len(t_s))
+    ratio, arrival = np.ones(len(t_s)), np.ones(len(t_s))
     windows: list[WindowResult] = []
     done = 0  # the first frame not optimised (or skipped) yet
     for k in range(len(t_s)):
+        arrival[k] = optimiser.leg_ratio
         optimiser.add(t_s[k], pelvis[k], legs[k], bones[k], suit_pelvis[k], suit_feet[k])
         last = k == len(t_s) - 1
         while optimiser.full or (last and len(optimiser)):
@@ -522,7 +526,8 @@ def optimise_sequence(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bon
             done = w.stop
     if optimiser.sole_m is None:
         raise NoGroundYet("no standing foot with the ground mapped under it: no sole height")
-    return SequenceResult(out_pelvis, out_legs, out_feet, stance, planes, float(optimiser.sole_m), windows, ratio)
+    return SequenceResult(out_pelvis, out_legs, out_feet, stance, planes, float(optimiser.sole_m), windows, ratio,
+                          arrival)
 
 
 def walk_leg_ratio(t_s: np.ndarray, pelvis: np.ndarray, legs: np.ndarray, bones: np.ndarray, suit_feet: np.ndarray,

@@ -118,8 +118,8 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
     rebuilt from the refined trajectory (S_opt) is, drift forgiven, no farther from the true surface than the live
     one (median / p90 1.44 / 4.21 against 1.51 / 4.37 cm; 1.56 / 4.30 when each sweep moved by the refined pelvis
     less the live fused one, before session 35). The body's size from the standing pelvis's height is 1.3 % off
-    the truth here; the optimised and refined bodies', the legs' length from the walk, within 1 % (measured 0.6 and
-    0.4 %)."""
+    the truth here; the legs' length from the walk within 1 %: the live graph's body at its end, the optimised and
+    refined bodies' (measured 0.4, 0.6 and 0.4 %)."""
     capture = SiteCapture(SiteCaptureConfig(seed=0, seconds=24.0, columns=512))
     run = run_capture(capture)
     assert abs(run.offset_ns - run.true_offset_ns) < 10_000_000
@@ -139,7 +139,8 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
         assert body[baseline]["contact_m"] > 2.0 * body["refined"]["contact_m"], baseline
     assert 0.0 < run.sole_m < 0.1 and len(run.window_s) >= 2
     size = {name: abs(v / run.body_scales["truth"] - 1.0) for name, v in run.body_scales.items()}
-    assert size["live"] > 0.01 and size["live_optimised"] < 0.01 and size["refined"] < 0.01  # the walk's legs
+    assert size["height"] > 0.01  # the walk's legs, from the second window on:
+    assert size["live"] < 0.01 and size["live_optimised"] < 0.01 and size["refined"] < 0.01
     scene = map_metrics(run, capture.terrain)
     for name in ("live", "refined"):
         m = scene[name]

@@ -109,6 +109,12 @@ def test_outputs_follow_the_contract(replay):
         last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
     counts = last["hsc4d_trajectory_node: frames"].values  # the map as the node last had it: no less, none refused
     assert int(counts["map points"]) >= sizes[-1] and int(counts["map points not kept (full)"]) == 0
+    # the body's size as reported (the standing pelvis height's, or the legs' from the walk once believed)
+    skeleton = load_skeleton()
+    bones = np.linalg.norm(poses[-1].positions[1:] - poses[-1].positions[skeleton.parents[1:]], axis=1)
+    bone_scales = bones / np.linalg.norm(skeleton.offsets[1:], axis=1)
+    scale = float(last["hsc4d_body_node: frames"].values["body scale"])
+    assert np.allclose(bone_scales, scale, atol=1e-3) and 0.8 < scale < 1.25, (bone_scales, scale)
 
 
 def test_accuracy_and_clock_offset_as_offline(replay):

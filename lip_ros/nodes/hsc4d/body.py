@@ -39,8 +39,13 @@ the walk (:mod:`lip_ros.hsc4d.leg_scale`: the fused pelvis's steps over a
 standing foot against the suit's legs; the pelvis height's size rests on the
 hip LiDAR's nominal lever arm along the body), from the window in which it is
 first believed on, and is published at that size (``body scale (legs from the
-walk)`` on ``/diagnostics``); the fused body's outputs keep the first size. A
-given ``body_scale`` is kept for both. Frames that cannot be
+walk)`` on ``/diagnostics``); the fused body's outputs take it too, as the
+optimiser had it at its last window, about the fused pelvis (``body scale``; how far the
+standing pelvis stood off those legs, the lever arm's part along the body off
+its nominal one, ``standing pelvis height off the walk's legs``): their
+pelvis stays ``/hsc4d/odometry``'s, so their feet stand that far off the
+map's ground, as the optimised body's foot joints do (its sole height takes
+it). A given ``body_scale`` is kept for both. Frames that cannot be
 optimised (no suit odometry near them; no map, or no ground under the first
 window's feet by then or at the end) are counted by reason on
 ``/diagnostics``.
@@ -163,7 +168,8 @@ class BodyNode(GraphNode):
         "odometry_topic": Param("input: the fused pelvis trajectory of hsc4d_trajectory_node"),
         "offset_topic": Param("input (latched): the suit's clock offset of hsc4d_trajectory_node"),
         "body_scale": Param("the performer's size relative to the contract skeleton (0 = from the standing pelvis "
-                            "height of the first fused pose)", non_negative),
+                            "height of the first fused pose, then, with optimise_window > 0, from the legs' length "
+                            "the walk gives)", non_negative),
         "suit_wait_s": Param("a pose waits this long after arriving for every segment's sample; longer (up to the "
                              "suit queues' 5 s) while the segments it waits for still send", positive),
         "max_waiting_poses": Param("poses that may wait for the suit; the oldest goes on with what there is",
@@ -193,6 +199,8 @@ class BodyNode(GraphNode):
         except ValueError as exc:
             raise ParameterError(str(exc)) from exc
         self._scale_from_height = p["body_scale"] == 0
+        self._standing_m: float | None = None  # the standing pelvis height the body was scaled to (None: given)
+        self._fused_ratio = 1.0  # the fused body's size over the standing height's (the legs' from the walk)
         self._resumed: TrajectoryResume | None = None  # the trajectory's state at start, until the first pose
         resume = Path(p["resume_file"]).expanduser() if p["resume_file"] else None
         if resume is not None and resume.exists() and self._scale_from_height:
@@ -489,7 +497,7 @@ class BodyNode(GraphNode):
                                                               f"{self.params['offset_topic']}")
             return
         if self._scale_from_height:
-            self._scale_from_height = False
+            self._scale_from_height, self._standing_m, self._fused_ratio = False, None, 1.0
             height, where = float(T_map_P[2, 3]), "the first fused pose's"
             resumed, self._resumed = self._resumed, None
             if resumed is not None and resume_refusal(resumed, stamp_ns, self.params["resume_max_gap_s"]) is None:
@@ -497,8 +505,10 @@ class BodyNode(GraphNode):
             try:
                 scale = self.body.scale_to_pelvis_height(height)
             except ValueError as exc:
-                self.get_logger().warning(f"body left at the contract's size: {exc}")
+                self.get_logger().warning(f"body left at {self.body.skeleton.scale:.3f} x the contract skeleton: "
+                                          f"{exc}")
             else:
+                self._standing_m = height
                 self.get_logger().info(f"body scaled to {where} standing pelvis height {height:.3f} m: "
                                        f"{scale:.3f} x the contract skeleton")
         self._decode()
@@ -509,8 +519,9 @@ class BodyNode(GraphNode):
         if reason:
             self._degraded += 1
             self.get_logger().info(f"pose at {stamp_ns} with held suit data: {reason}", throttle_duration_sec=2.0)
-        for topic, raw in pose_cdr(HSC4D_TOPICS, self.body.skeleton, stamp_ns, frame_id, pose.local_rot,
-                                   pose.glob_rot, pose.joints).items():
+        fused_pose = self._walk_sized(pose)
+        for topic, raw in pose_cdr(HSC4D_TOPICS, self.body.skeleton, stamp_ns, frame_id, fused_pose.local_rot,
+                                   fused_pose.glob_rot, fused_pose.joints).items():
             self._out[topic].publish(raw)
         self.count_frame("pose")
         self._latency.add(time.monotonic() - fused.received)
@@ -518,11 +529,41 @@ class BodyNode(GraphNode):
             self._last_pose_at = time.monotonic()
             self._optimise_frame(fused, pose)
 
+    def _walk_sized(self, pose: BodyPose) -> BodyPose:
+        """The fused body as published: with its size from the standing height, at the legs' length from the walk
+        once the optimiser believes it (as it had it at its last window collected), about the fused pelvis; else
+        ``pose``."""
+        if self._standing_m is None or self._optimiser is None:
+            return pose
+        ratio = self._optimiser.leg_ratio
+        if ratio != 1.0 and self._fused_ratio == 1.0:  # first believed (then each window's, on /diagnostics)
+            self.get_logger().info(f"fused body at the legs' length from the walk: {ratio:.4f} x the standing "
+                                   f"height's size; the standing pelvis stood {self._off_walk(ratio):+.3f} m off "
+                                   f"those legs (the hip LiDAR's lever arm along the body off its nominal part, "
+                                   f"or the soles)")
+        self._fused_ratio = ratio
+        return pose if ratio == 1.0 else resized_body(pose, ratio)
+
+    def _off_walk_status(self) -> str:
+        """:meth:`_off_walk` of the fused body's size now, or why there is none."""
+        if self._optimiser is None:
+            return "not measured (no optimisation)"
+        if self._standing_m is None:
+            return "not measured (body_scale given)"
+        return "not measured yet" if self._fused_ratio == 1.0 else f"{self._off_walk(self._fused_ratio):+.3f}"
+
+    def _off_walk(self, ratio: float) -> float:
+        """How far the standing pelvis height the body was scaled to stands above the legs at ``ratio`` of it
+        (positive: higher)."""
+        return (1.0 - ratio) * self._standing_m
+
     def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
         """Poses published, the body's scale, poses waiting, latencies."""
         level = DiagnosticLevel.OK if self.frames["pose"] else DiagnosticLevel.WARN
         return level, "posing" if self.frames["pose"] else "no pose yet", {
-            "body scale": f"{self.body.skeleton.scale:.3f}", "poses with held suit data": self._degraded,
+            "body scale": f"{self.body.skeleton.scale * self._fused_ratio:.3f}",
+            "standing pelvis height off the walk's legs (m)": self._off_walk_status(),
+            "poses with held suit data": self._degraded,
             "pending": len(self._waiting), **{f"suit samples rejected: {k}": v for k, v in self._rejected.items()},
             "clock steps back (LiDAR, suit)": f"{len(self._lidar_clock.steps_ns)}, {len(self._suit_clock.steps_ns)}",
             "new captures begun": self._began_again,
