@@ -40,12 +40,12 @@ standing foot against the suit's legs; the pelvis height's size rests on the
 hip LiDAR's nominal lever arm along the body), from the window in which it is
 first believed on, and is published at that size (``body scale (legs from the
 walk)`` on ``/diagnostics``); the fused body's outputs take it too, as the
-optimiser had it at its last window, about the fused pelvis (``body scale``; how far the
-standing pelvis stood off those legs, the lever arm's part along the body off
-its nominal one, ``standing pelvis height off the walk's legs``): their
-pelvis stays ``/hsc4d/odometry``'s, so their feet stand that far off the
-map's ground, as the optimised body's foot joints do (its sole height takes
-it). A given ``body_scale`` is kept for both. Frames that cannot be
+optimiser had it at its last window, about the fused pelvis (``body scale``;
+how far the standing pelvis stood off those legs, the lever arm's part along
+the body off its nominal one, ``standing pelvis height off the walk's
+legs``): their pelvis stays ``/hsc4d/odometry``'s, so their feet stand that
+far off the map's ground, as the optimised body's foot joints do (its sole
+height takes it). A given ``body_scale`` is kept for both. Frames that cannot be
 optimised (no suit odometry near them; no map, or no ground under the first
 window's feet by then or at the end) are counted by reason on
 ``/diagnostics``.
