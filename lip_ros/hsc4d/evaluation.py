@@ -33,8 +33,9 @@ ramps, the terrace) and the error at the end.
 The body: the suit's joints (:class:`~lip_ros.hsc4d.suit_body.SuitBody`) on each
 method's pelvis, scaled to the first fused pelvis height as the body node does;
 the live graph's, as the body node publishes it, at the legs' length from the
-walk from the frame after the window that first believes it on; the optimised
-and refined bodies' at the walk's too.
+walk from the frame after the window that first believes it on, its standing
+feet held (:mod:`lip_ros.hsc4d.foot_lock`); the optimised and refined bodies'
+at the walk's too.
 :func:`body_metrics` reports, against the truth and under the same alignment,
 the checkpoint error (the foot joint at the middle of each true stance), the
 foot contact error (a standing foot's height above the true surface under it
@@ -53,6 +54,7 @@ import numpy as np
 
 from lip_ros.core.metrics import align_yaw_translation, mpjpe
 from lip_ros.core.skeleton import load_skeleton
+from lip_ros.hsc4d.foot_lock import FOOT_LOCK, FootLockConfig, locked_bodies
 from lip_ros.hsc4d.lidar_odometry import NOT_REGISTERED, KissIcpAlone
 from lip_ros.hsc4d.refinement import CaptureRefiner, RefinementConfig
 from lip_ros.hsc4d.scene_optimisation import TERMS, SceneOptimisationConfig, optimise_sequence, without
@@ -147,10 +149,12 @@ def capture_sweeps(capture: SiteCapture, refiner: CaptureRefiner) -> Iterator[tu
 
 def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                 progress: Callable[[int, int], None] | None = None,
-                scene: SceneOptimisationConfig | None = None) -> TrajectoryRun:
+                scene: SceneOptimisationConfig | None = None,
+                foot_lock: FootLockConfig | None = FOOT_LOCK) -> TrajectoryRun:
     """Play ``capture`` through a :class:`CaptureRefiner` (``progress(k, n)`` after each sweep), pose the body on
-    each method's trajectory and optimise the live one and refine the capture with ``scene``; :class:`CaptureLost`
-    if a sweep was not posed or the capture cannot be refined."""
+    each method's trajectory and optimise the live one and refine the capture with ``scene``, the live graph's
+    standing feet held by ``foot_lock`` (None: not held); :class:`CaptureLost` if a sweep was not posed or the
+    capture cannot be refined."""
     scene = scene or SceneOptimisationConfig()
     refiner = CaptureRefiner(RefinementConfig(trajectory=config or TrajectoryConfig(), scene=scene))
     pipeline = refiner.pipeline
@@ -202,8 +206,11 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                                live.suit_pelvis[:, :3, 3], live.suit_joints[:, feet],
                                lambda k: next(m for last, m in maps if last >= k), scene)
     # the fused body as the body node publishes it: at the legs' length from the walk as of the windows solved
-    # before the frame came (less the half second a window takes to solve there)
+    # before the frame came (less the half second a window takes to solve there), its standing feet held
     joints["live"] = resized_body(live.body, result.arrival_leg_ratio).joints
+    if foot_lock is not None:
+        joints["live"] = locked_bodies(skeleton, t_s, resized_body(live.body, result.arrival_leg_ratio),
+                                       live.suit_joints[:, feet], foot_lock).joints
     poses["live_optimised"] = result.pelvis
     joints["live_optimised"] = resized_body(bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton,
                                                       result.legs), result.leg_ratio).joints

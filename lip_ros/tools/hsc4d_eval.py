@@ -31,7 +31,8 @@ beams), ``--mount-tilt-up DEG`` (its true tilt), ``--mount-spin DEG`` (turned ab
 (the suit's rate), ``--suit-noise-scale X`` (the suit's IMU errors X times the rig's), ``--sway DEG`` (the wearer
 sways in the A-pose), ``--scene`` (what the site holds); ``--no-check-mount`` turns
 the method's checks of the mounting at the start off (its spin and its hip), ``--no-check-hip`` only that of the
-hip.
+hip. ``--foot-lock MPS M`` sets the live graph's foot lock (the body node's, ``lip_ros.hsc4d.foot_lock``),
+``--no-foot-lock`` turns it off.
 Held-out seeds: 1000 and up (development used 0-20).
 """
 
@@ -41,12 +42,14 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from lip_ros.core.rotations import geodesic_angle
 from lip_ros.hsc4d import evaluation as ev
+from lip_ros.hsc4d.foot_lock import FOOT_LOCK
 from lip_ros.hsc4d.lidar_odometry import OdometryConfig
 from lip_ros.hsc4d.mount import HipMountPrior, LeverArmEstimator
 from lip_ros.hsc4d.trajectory import PINNED, RATE_CAPPED, TrajectoryConfig
@@ -153,14 +156,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-check-hip", action="store_true",
                         help="the method takes the hip from the nominal lever arm: not found from the wearer's body "
                              "at the start (params/hsc4d.yaml's check_mount_hip false)")
+    parser.add_argument("--foot-lock", type=float, nargs=2, metavar=("MPS", "M"),
+                        default=(FOOT_LOCK.stance_speed_mps, FOOT_LOCK.release_m),
+                        help="the live graph's foot lock: a foot stands below this speed of the suit's own, held "
+                             "within this distance of the body's")
+    parser.add_argument("--no-foot-lock", action="store_true", help="the live graph's standing feet not held")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     try:
+        foot_lock = None if args.no_foot_lock else replace(FOOT_LOCK, stance_speed_mps=args.foot_lock[0],
+                                                           release_m=args.foot_lock[1])
         odometry = OdometryConfig(max_rate_hz=args.max_registration_hz,
                                   pinned_information=tuple(args.pinned_information),
                                   pinned_tilt_information=tuple(args.pinned_tilt_information))
     except ValueError:
-        parser.error("a band of information is 0 <= LOW < HIGH, or 0 0; a rate is not negative")
+        parser.error("a band of information is 0 <= LOW < HIGH, or 0 0; a rate is not negative; the foot lock's "
+                     "speed and distance are positive")
     config = TrajectoryConfig(mount=HipMountPrior(spin_deg=args.nominal_spin), odometry=odometry,
                               check_mount=not args.no_check_mount, check_hip=not args.no_check_hip)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -174,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  seed {seed}: sweep {k + 1}/{n}", flush=True)
 
         try:
-            run = ev.run_capture(capture, config, progress=progress)
+            run = ev.run_capture(capture, config, progress=progress, foot_lock=foot_lock)
         except ev.CaptureLost as lost:  # reported with the others (a rig variant may break the method)
             report[seed] = {"lost": str(lost)}
             print(f"seed {seed}: LOST: {lost}", flush=True)

@@ -30,6 +30,7 @@ from lip_ros.hsc4d.sensors import (
     REFINED_TOPICS,
 )
 from lip_ros.hsc4d.site_map import SiteMapConfig
+from lip_ros.hsc4d.suit_body import FEET
 from lip_ros.rig.bag import TRUTH_FILE
 from lip_ros.rig.site_bag import write_site_bag
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
@@ -115,6 +116,27 @@ def test_outputs_follow_the_contract(replay):
     bone_scales = bones / np.linalg.norm(skeleton.offsets[1:], axis=1)
     scale = float(last["hsc4d_body_node: frames"].values["body scale"])
     assert np.allclose(bone_scales, scale, atol=1e-3) and 0.8 < scale < 1.25, (bone_scales, scale)
+
+
+def test_the_fused_body_holds_its_standing_feet(replay):
+    """The body node's foot lock (lip_ros.hsc4d.foot_lock) over DDS: a standing foot joint keeps its horizontal
+    position from frame to frame (to the message's float64) for much of the walk, which a body hanging on the fused
+    pelvis never does; its bones keep their lengths (test_outputs_follow_the_contract); /diagnostics says which foot
+    stands and how many anchors were let go."""
+    _, out, _ = replay
+    skeleton = load_skeleton()
+    feet = [skeleton.index(f) for f in FEET]
+    arrays = [msg_to_pose_array(m.msg) for m in read_messages(out, [HSC4D_TOPICS.joint_poses])]
+    poses, t = np.array([a.positions for a in arrays]), 1e-9 * np.array([a.stamp_ns for a in arrays])
+    walking = np.linalg.norm(np.diff(poses[:, 0, :2], axis=0), axis=-1) > 0.5 * np.diff(t)  # pelvis at 0.5 m/s
+    held = np.linalg.norm(np.diff(poses[:, feet, :2], axis=0), axis=-1) < 1e-9  # (N - 1, 2)
+    assert walking.sum() > 40, walking.sum()
+    assert held[walking].any(axis=1).mean() > 0.3, held[walking].mean(axis=0)
+    last = {}
+    for m in read_messages(out, ["/diagnostics"]):
+        last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
+    body = last["hsc4d_body_node: frames"].values
+    assert body["feet standing"] in ("none", "left", "right", "left, right") and int(body["foot anchors let go"]) >= 0
 
 
 def test_accuracy_and_clock_offset_as_offline(replay):

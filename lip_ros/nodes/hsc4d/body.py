@@ -17,6 +17,13 @@ under that pelvis), and the scale is logged and reported. The suit's topics
 than each waking the executor: that halved the node's CPU
 (``GraphNode.add_input(polled=True)``).
 
+With ``foot_lock`` (the default) the standing feet of the fused body are held
+where they stood (:class:`lip_ros.hsc4d.foot_lock.FootLock`): which foot stands
+comes from the suit's own feet (its segments on its own ``/mocap/odometry``,
+where a standing foot is still), and the leg's hip and knee are turned to keep
+its foot joint there; the pelvis stays ``/hsc4d/odometry``'s. A frame without
+the suit's odometry near it holds nothing, and the stances start again.
+
 With ``optimise_window`` > 0 it also runs the scene-aware optimisation
 (:class:`lip_ros.hsc4d.scene_optimisation.SceneOptimiser`): each posed frame
 joins a window, with the feet as the suit alone places them (its segments on
@@ -97,6 +104,7 @@ from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.core.torch_runtime import set_threads
 from lip_ros.hsc4d.background_optimiser import BackgroundOptimiser
+from lip_ros.hsc4d.foot_lock import FootLock
 from lip_ros.hsc4d.resume import TrajectoryResume, load_resume, resume_refusal
 from lip_ros.hsc4d.scene_optimisation import NoGroundYet, SceneOptimisationConfig, SceneOptimiser, WindowResult
 from lip_ros.hsc4d.sensors import HSC4D_TOPICS, OPTIMISED_ODOMETRY_TOPIC, OPTIMISED_TOPICS, PELVIS_FRAME
@@ -176,8 +184,10 @@ class BodyNode(GraphNode):
                                    positive),
         "max_imu_gap_s": Param("widest gap between two suit samples interpolated across", positive),
         "suit_odometry_topic": Param("input: the suit's own nav_msgs/Odometry (a new capture beginning; which "
-                                     "foot stands, for the optimisation)"),
+                                     "foot stands, for the foot lock and the optimisation)"),
         "map_topic": Param("input (latched): the map of hsc4d_trajectory_node (the ground under the feet)"),
+        "foot_lock": Param("hold the fused body's standing feet where they stood (which foot stands: the suit's own "
+                           "feet on suit_odometry_topic; lip_ros.hsc4d.foot_lock)"),
         "optimise_window": Param("frames per scene-aware optimisation window (0: no optimisation)",
                                  lambda v: None if v == 0 or v >= 3 else f"must be 0 or >= 3, got {v}"),
         "optimise_flush_s": Param("a partial window is optimised once no fused pose came for this long", positive),
@@ -221,6 +231,11 @@ class BodyNode(GraphNode):
         self._latency = LatencyWindow()  # fused pose received -> body published
         self._out = self._pose_publishers(HSC4D_TOPICS)
         self._optimiser = None
+        self._lock = FootLock(self.body.skeleton) if p["foot_lock"] else None
+        self._feet = [self.body.skeleton.index(f) for f in FEET]
+        # the suit's own pelvis poses (which foot stands), for the foot lock and the optimisation
+        self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
+        self._suit_poses: deque[np.ndarray] = deque(maxlen=self.body.config.capacity)
         if p["optimise_window"]:
             set_threads(p["optimise_threads"])
             # the optimised body's legs take their length from the walk unless the body's size is given; its
@@ -228,9 +243,6 @@ class BodyNode(GraphNode):
             self._optimiser = BackgroundOptimiser(SceneOptimiser(replace(
                 SceneOptimisationConfig(), window=p["optimise_window"], legs_from_walk=self._scale_from_height)))
             self._closing: list[BackgroundOptimiser] = []  # the last captures': their last windows being solved
-            self._feet = [self.body.skeleton.index(f) for f in FEET]
-            self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
-            self._suit_poses: deque[np.ndarray] = deque(maxlen=self.body.config.capacity)
             self._last_pose_at = time.monotonic()
             self._optimised = 0
             self._not_optimised: Counter[str] = Counter()
@@ -294,7 +306,7 @@ class BodyNode(GraphNode):
             self.get_logger().warning(f"a new capture began: {began}; its poses go on from its first fused pose")
             self._new_capture = (self._last_fused_ns, False)
             self._began_again += 1
-        if self._optimiser is None:
+        if self._optimiser is None and self._lock is None:
             return odometry.stamp_ns
         if self._suit_stamps and line_ns <= self._suit_stamps[-1]:
             raise MalformedMessageError("not after the last sample")
@@ -314,6 +326,8 @@ class BodyNode(GraphNode):
             self._closing.append(self._optimiser)
             self._optimiser = BackgroundOptimiser(SceneOptimiser(self._optimiser.config))
         self._scale_from_height = self.params["body_scale"] == 0
+        if self._lock is not None:
+            self._lock.reset()
         self._new_capture = None
         return self._lidar_clock.realign("fused odometry", stamp_ns, self._suit_clock.shift_ns)
 
@@ -326,20 +340,27 @@ class BodyNode(GraphNode):
         k = k - 1 if k > 0 and abs(stamps[k - 1] - suit_ns) < abs(stamps[k] - suit_ns) else k
         return self._suit_poses[k] if abs(stamps[k] - suit_ns) <= self.params["max_imu_gap_s"] * 1e9 else None
 
-    def _optimise_frame(self, fused: _FusedPose, pose: BodyPose) -> None:
-        """Give one posed frame to the optimiser (with the suit's own feet); optimise a full window."""
-        stamp_ns, line_ns, frame_id, T_map_P = fused.stamp_ns, fused.line_ns, fused.frame_id, fused.T_map_P
-        suit_ns = line_ns + self._offset_ns
+    def _suit_own(self, fused: _FusedPose) -> tuple[np.ndarray, BodyPose] | None:
+        """The suit's own pelvis pose at a fused pose's moment and its body on it (where a standing foot is still),
+        or None (no suit odometry near it)."""
+        suit_ns = fused.line_ns + self._offset_ns
         T_suit = self._suit_pose(suit_ns)
         if T_suit is None and self.take_waiting("suit odometry"):  # polled: taken at the drain's pace
             T_suit = self._suit_pose(suit_ns)
         suit = None if T_suit is None else self.body.pose(suit_ns, T_suit)[0]
+        return None if suit is None else (T_suit, suit)
+
+    def _optimise_frame(self, fused: _FusedPose, pose: BodyPose, suit: tuple[np.ndarray, BodyPose] | None) -> None:
+        """Give one posed frame to the optimiser (with the suit's own pelvis and feet, :meth:`_suit_own`); optimise
+        a full window."""
         if suit is None:
             self._not_optimised["optimisation skipped: no suit odometry near the frame"] += 1
             return
+        T_suit, suit_body = suit
         live = self._optimiser
-        dropped = live.add((stamp_ns, frame_id, pose, T_map_P), line_ns * 1e-9, T_map_P,
-                           *leg_chains(self.body.skeleton, pose.local_rot), T_suit[:3, 3], suit.joints[self._feet])
+        dropped = live.add((fused.stamp_ns, fused.frame_id, pose, fused.T_map_P), fused.line_ns * 1e-9,
+                           fused.T_map_P, *leg_chains(self.body.skeleton, pose.local_rot), T_suit[:3, 3],
+                           suit_body.joints[self._feet])
         self._count_skipped(len(dropped), self._drop_reason(live))
         self._solve(live)
 
@@ -520,6 +541,10 @@ class BodyNode(GraphNode):
             self._degraded += 1
             self.get_logger().info(f"pose at {stamp_ns} with held suit data: {reason}", throttle_duration_sec=2.0)
         fused_pose = self._walk_sized(pose)
+        suit = self._suit_own(fused) if self._lock is not None or self._optimiser is not None else None
+        if self._lock is not None:
+            fused_pose = self._lock.step(fused.line_ns * 1e-9, fused_pose,
+                                         None if suit is None else suit[1].joints[self._feet])
         for topic, raw in pose_cdr(HSC4D_TOPICS, self.body.skeleton, stamp_ns, frame_id, fused_pose.local_rot,
                                    fused_pose.glob_rot, fused_pose.joints).items():
             self._out[topic].publish(raw)
@@ -527,7 +552,7 @@ class BodyNode(GraphNode):
         self._latency.add(time.monotonic() - fused.received)
         if self._optimiser is not None:
             self._last_pose_at = time.monotonic()
-            self._optimise_frame(fused, pose)
+            self._optimise_frame(fused, pose, suit)
 
     def _walk_sized(self, pose: BodyPose) -> BodyPose:
         """The fused body as published: with its size from the standing height, at the legs' length from the walk
@@ -563,11 +588,19 @@ class BodyNode(GraphNode):
         return level, "posing" if self.frames["pose"] else "no pose yet", {
             "body scale": f"{self.body.skeleton.scale * self._fused_ratio:.3f}",
             "standing pelvis height off the walk's legs (m)": self._off_walk_status(),
+            **self._lock_status(),
             "poses with held suit data": self._degraded,
             "pending": len(self._waiting), **{f"suit samples rejected: {k}": v for k, v in self._rejected.items()},
             "clock steps back (LiDAR, suit)": f"{len(self._lidar_clock.steps_ns)}, {len(self._suit_clock.steps_ns)}",
             "new captures begun": self._began_again,
             **self._latency.values("latency_ms"), **self._optimisation_status()}
+
+    def _lock_status(self) -> dict[str, Any]:
+        """The foot lock's: which feet stand now, anchors let go."""
+        if self._lock is None:
+            return {"foot lock": "off"}
+        standing = [side for side, held in zip(("left", "right"), self._lock.standing(), strict=True) if held]
+        return {"feet standing": ", ".join(standing) or "none", "foot anchors let go": self._lock.released}
 
     def _optimisation_status(self) -> dict[str, Any]:
         """The optimisation's counts: frames optimised, waiting, not optimised by reason; the sole height; the

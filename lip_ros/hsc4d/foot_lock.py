@@ -1,0 +1,165 @@
+"""The fused body's standing feet held where they stood: a causal foot lock (ROS-free).
+
+The fused body (:mod:`lip_ros.hsc4d.suit_body`) hangs the suit's segments on the fused pelvis: a standing foot
+moves with every error of the pelvis's trajectory and of the suit's leg segments, about a centimetre a frame at
+10 Hz where a true standing foot joint moves about half that, nearly all of it as it lands. :class:`FootLock`
+takes, frame by frame and using nothing later, which foot stands from the suit's own feet (its segments on its
+own odometry: a foot it calls standing is still there) and holds that foot joint where the body put it when its
+stance began (the height: the mean over the stance so far): the hip and the knee are turned (two-bone IK; the
+ankle keeps its orientation in ``map``, so the foot below it does too) until the foot joint is on its anchor. The
+pelvis and the rest of the body are not touched. A hold that would move the foot joint more than ``release_m``
+(the pelvis's trajectory corrected under it, a stance the suit calls too long, a leg that cannot reach) lets the
+anchor go: the foot joint is the body's own there, and held from there. Docs: docs/hsc4d/graph.md ("The
+standing feet").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from lip_ros.core.rotations import axis_angle_to_matrix
+from lip_ros.core.skeleton import Skeleton
+from lip_ros.hsc4d.suit_body import LEGS, BodyPose
+
+__all__ = ["FootLockConfig", "FOOT_LOCK", "FootLock", "locked_bodies", "leg_reaching"]
+
+
+@dataclass(frozen=True)
+class FootLockConfig:
+    """When a foot is held, and how far at most."""
+
+    #: a foot stands while the suit's own foot moved slower than this since the last frame (m/s; the suit's
+    #: dead reckoning keeps its standing foot still, its swing foot moves at a metre a second and more; 0.5 and 0.7
+    #: held more of the stances and took more of the body's errors into its legs: docs/hsc4d/graph.md)
+    stance_speed_mps: float = 0.3
+    release_m: float = 0.05  # a foot joint held further than this from the body's own lets its anchor go
+    max_frame_gap_s: float = 0.5  # frames further apart than this: the stances start again
+
+    def __post_init__(self) -> None:
+        if not (self.stance_speed_mps > 0.0 and self.release_m > 0.0 and self.max_frame_gap_s > 0.0):
+            raise ValueError(f"invalid {self}")
+
+
+#: The foot lock the body node runs (``foot_lock`` true).
+FOOT_LOCK = FootLockConfig()
+
+
+def _turn_onto(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The smallest rotation (3, 3) that turns the direction of ``u`` (3,) onto that of ``v``."""
+    u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
+    axis = np.cross(u, v)
+    s = float(np.linalg.norm(axis))
+    if s < 1e-12:
+        return np.eye(3)  # parallel (antiparallel cannot happen: the turns asked for are small)
+    return axis_angle_to_matrix(axis / s * np.arctan2(s, float(u @ v)))
+
+
+def leg_reaching(pose: BodyPose, skeleton: Skeleton, leg: int, ankle_to: np.ndarray) -> BodyPose | None:
+    """``pose`` with leg ``leg`` (index into :data:`LEGS`)'s hip and knee turned so that its ankle joint is at
+    ``ankle_to`` (3,), the ankle's orientation kept (so the foot below it moves with the ankle) and the knee bent
+    in the plane it bends in now; None if the leg cannot reach (too far, or nearer the hip than a folded knee)."""
+    hip, knee, ankle, _ = (skeleton.index(name) for name in LEGS[leg])
+    H, K, A = pose.joints[hip], pose.joints[knee], pose.joints[ankle]
+    thigh, shank = float(np.linalg.norm(K - H)), float(np.linalg.norm(A - K))
+    reach = ankle_to - H
+    d = float(np.linalg.norm(reach))
+    if not (abs(thigh - shank) < d < thigh + shank):
+        return None
+    u = reach / d
+    along = (thigh**2 - shank**2 + d**2) / (2.0 * d)  # the new knee's distance from the hip along u
+    side = (K - H) - ((K - H) @ u) * u  # the knee's way out of the line hip-ankle, as it bends now
+    if np.linalg.norm(side) < 1e-9:
+        return None  # a straight leg: no plane to bend in
+    K_new = H + along * u + np.sqrt(max(thigh**2 - along**2, 0.0)) * side / np.linalg.norm(side)
+    turn_hip = _turn_onto(K - H, K_new - H)
+    turn_knee = _turn_onto(turn_hip @ (A - K), ankle_to - K_new) @ turn_hip
+    glob = pose.glob_rot.copy()
+    glob[hip], glob[knee] = turn_hip @ glob[hip], turn_knee @ glob[knee]
+    local = pose.local_rot.copy()
+    parents = skeleton.parents
+    for j in (hip, knee, ankle):  # the ankle's orientation kept: its local rotation under the new knee
+        local[j] = glob[parents[j]].T @ glob[j]
+    joints = pose.joints.copy()
+    joints[knee] = K_new
+    below = [j for j in range(len(joints)) if _descends(parents, j, ankle)]
+    joints[below] += ankle_to - A
+    return BodyPose(local, glob, joints)
+
+
+def _descends(parents: Sequence[int], j: int, top: int) -> bool:
+    """Whether joint ``j`` is ``top`` or below it."""
+    while j >= 0:
+        if j == top:
+            return True
+        j = parents[j] if j else -1
+    return False
+
+
+class FootLock:
+    """The foot lock of one capture, frame by frame (:meth:`step`); :meth:`reset` for a new one.
+
+    A standing foot joint is held at the horizontal position the body gave it when its stance began, and at the
+    mean height the body gave it over the stance so far (a height held from the stance's first frame kept that
+    frame's error for the whole stance: the contact error grew, docs)."""
+
+    def __init__(self, skeleton: Skeleton, config: FootLockConfig | None = None) -> None:
+        self.config = config or FootLockConfig()
+        self.skeleton = skeleton
+        self._feet = [skeleton.index(leg[-1]) for leg in LEGS]
+        self._ankles = [skeleton.index(leg[2]) for leg in LEGS]
+        self.released = 0  #: anchors let go (further than release_m from the body's own foot, or out of reach)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stances (a new capture, or a gap)."""
+        self._last: tuple[float, np.ndarray] | None = None  # (t, the suit's feet (2, 3)) of the last frame
+        self._anchor: list[np.ndarray | None] = [None, None]  # each standing foot's (x, y, summed z, frames)
+
+    def standing(self) -> list[bool]:
+        """Which feet stand now (held from the next frame on)."""
+        return [a is not None for a in self._anchor]
+
+    def step(self, t_s: float, pose: BodyPose, suit_feet: np.ndarray | None) -> BodyPose:
+        """The body at time ``t_s`` (s) with its standing feet held; ``suit_feet`` (2, 3): the suit's own foot
+        joints (its segments on its own odometry; None: not known, nothing held and the stances start again)."""
+        if suit_feet is None or not np.isfinite(suit_feet).all():
+            self.reset()
+            return pose
+        last, self._last = self._last, (t_s, np.asarray(suit_feet, dtype=np.float64))
+        if last is None or not 0.0 < t_s - last[0] <= self.config.max_frame_gap_s:
+            self._anchor = [None, None]
+            return pose
+        speed = np.linalg.norm(self._last[1] - last[1], axis=1) / (t_s - last[0])
+        for leg, foot in enumerate(self._feet):
+            own = pose.joints[foot]
+            anchor = self._anchor[leg]
+            if speed[leg] >= self.config.stance_speed_mps:
+                self._anchor[leg] = None
+                continue
+            if anchor is None:  # the stance begins where the body puts the foot now
+                self._anchor[leg] = np.array([own[0], own[1], own[2], 1.0])
+                continue
+            anchor[2:] += (own[2], 1.0)
+            target = np.array([anchor[0], anchor[1], anchor[2] / anchor[3]])
+            held = None
+            if np.linalg.norm(target - own) <= self.config.release_m:
+                held = leg_reaching(pose, self.skeleton, leg, pose.joints[self._ankles[leg]] + target - own)
+            if held is None:  # let go: the stance begins again where the body's own foot is
+                self.released += 1
+                self._anchor[leg] = np.array([own[0], own[1], own[2], 1.0])
+            else:
+                pose = held
+        return pose
+
+
+def locked_bodies(skeleton: Skeleton, t_s: np.ndarray, bodies: BodyPose, suit_feet: np.ndarray,
+                  config: FootLockConfig | None = None) -> BodyPose:
+    """:meth:`FootLock.step` over a capture's frames in turn: times (N,), bodies (arrays (N, 24, ...)), the suit's
+    own feet (N, 2, 3); the bodies with their standing feet held."""
+    lock = FootLock(skeleton, config)
+    out = [lock.step(float(t), BodyPose(bodies.local_rot[k], bodies.glob_rot[k], bodies.joints[k]), suit_feet[k])
+           for k, t in enumerate(t_s)]
+    return BodyPose(*(np.stack([getattr(p, f) for p in out]) for f in ("local_rot", "glob_rot", "joints")))
