@@ -36,7 +36,7 @@ class FootLockConfig:
     #: held more of the stances and took more of the body's errors into its legs: docs/hsc4d/graph.md)
     stance_speed_mps: float = 0.3
     release_m: float = 0.05  # a foot joint held further than this from the body's own lets its anchor go
-    max_frame_gap_s: float = 0.5  # frames further apart than this: the stances start again
+    max_frame_gap_s: float = 0.5  # this long without the suit's feet (or between frames): the stances start again
 
     def __post_init__(self) -> None:
         if not (self.stance_speed_mps > 0.0 and self.release_m > 0.0 and self.max_frame_gap_s > 0.0):
@@ -59,21 +59,28 @@ def _turn_onto(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def leg_reaching(pose: BodyPose, skeleton: Skeleton, leg: int, ankle_to: np.ndarray) -> BodyPose | None:
     """``pose`` with leg ``leg`` (index into :data:`LEGS`)'s hip and knee turned so that its ankle joint is at
-    ``ankle_to`` (3,), the ankle's orientation kept (so the foot below it moves with the ankle) and the knee bent
-    in the plane it bends in now; None if the leg cannot reach (too far, or nearer the hip than a folded knee)."""
+    ``ankle_to`` (3,), the ankle's orientation kept (so the foot below it moves with the ankle); None if the leg
+    cannot reach. The knee keeps its place about the line from the hip to the ankle in the thigh's own axes: its
+    offset along the knee's hinge (the skeleton's left-right axis, turned with the thigh) stays, and it comes
+    forward or back of the line as far as the bones' lengths ask, on the side it is now (``ankle_to`` at the
+    ankle: the pose itself); a leg straighter than that lets it be cannot reach."""
     hip, knee, ankle, _ = (skeleton.index(name) for name in LEGS[leg])
     H, K, A = pose.joints[hip], pose.joints[knee], pose.joints[ankle]
     thigh, shank = float(np.linalg.norm(K - H)), float(np.linalg.norm(A - K))
-    reach = ankle_to - H
-    d = float(np.linalg.norm(reach))
-    if not (abs(thigh - shank) < d < thigh + shank):
+    d = float(np.linalg.norm(ankle_to - H))
+    if not abs(thigh - shank) < d < thigh + shank:
         return None
-    u = reach / d
-    along = (thigh**2 - shank**2 + d**2) / (2.0 * d)  # the new knee's distance from the hip along u
-    side = (K - H) - ((K - H) @ u) * u  # the knee's way out of the line hip-ankle, as it bends now
-    if np.linalg.norm(side) < 1e-9:
-        return None  # a straight leg: no plane to bend in
-    K_new = H + along * u + np.sqrt(max(thigh**2 - along**2, 0.0)) * side / np.linalg.norm(side)
+    lateral = skeleton.offsets[skeleton.index(LEGS[0][0])] - skeleton.offsets[skeleton.index(LEGS[1][0])]
+    hinge = pose.glob_rot[hip] @ (lateral / np.linalg.norm(lateral))
+    now, new = _leg_axes(A - H, hinge), _leg_axes(ankle_to - H, hinge)
+    if now is None or new is None:
+        return None  # the leg along its hinge: no forward to bend to
+    _, out, across = now @ (K - H)  # the knee's place about the hip-ankle line now
+    along = (thigh**2 - shank**2 + d**2) / (2.0 * d)  # the new knee's distance from the hip along the new line
+    forward2 = thigh**2 - across**2 - along**2
+    if forward2 < 0.0:
+        return None  # straighter than a knee turning about its hinge can be
+    K_new = H + new.T @ np.array([along, np.copysign(np.sqrt(forward2), out), across])
     turn_hip = _turn_onto(K - H, K_new - H)
     turn_knee = _turn_onto(turn_hip @ (A - K), ankle_to - K_new) @ turn_hip
     glob = pose.glob_rot.copy()
@@ -87,6 +94,18 @@ def leg_reaching(pose: BodyPose, skeleton: Skeleton, leg: int, ankle_to: np.ndar
     below = [j for j in range(len(joints)) if _descends(parents, j, ankle)]
     joints[below] += ankle_to - A
     return BodyPose(local, glob, joints)
+
+
+def _leg_axes(leg: np.ndarray, hinge: np.ndarray) -> np.ndarray | None:
+    """(3, 3) rows: along the hip-ankle line ``leg`` (3,), forward of it (the way a knee bending about ``hinge``
+    goes), and across (along the hinge); None if the line is along the hinge."""
+    u = leg / np.linalg.norm(leg)
+    forward = np.cross(u, hinge)
+    norm = float(np.linalg.norm(forward))
+    if norm < 1e-6:
+        return None
+    forward /= norm
+    return np.stack([u, forward, np.cross(u, forward)])
 
 
 def _descends(parents: Sequence[int], j: int, top: int) -> bool:
@@ -124,19 +143,24 @@ class FootLock:
 
     def step(self, t_s: float, pose: BodyPose, suit_feet: np.ndarray | None) -> BodyPose:
         """The body at time ``t_s`` (s) with its standing feet held; ``suit_feet`` (2, 3): the suit's own foot
-        joints (its segments on its own odometry; None: not known, nothing held and the stances start again)."""
+        joints (its segments on its own odometry). None (not known for this frame): the feet that stood stay
+        standing, until ``max_frame_gap_s`` after the last frame that had them; then the stances start again."""
+        last = self._last
+        if last is not None and not 0.0 < t_s - last[0] <= self.config.max_frame_gap_s:
+            self.reset()  # too long without the suit's feet, or the time went back
+            last = None
         if suit_feet is None or not np.isfinite(suit_feet).all():
-            self.reset()
-            return pose
-        last, self._last = self._last, (t_s, np.asarray(suit_feet, dtype=np.float64))
-        if last is None or not 0.0 < t_s - last[0] <= self.config.max_frame_gap_s:
-            self._anchor = [None, None]
-            return pose
-        speed = np.linalg.norm(self._last[1] - last[1], axis=1) / (t_s - last[0])
+            standing = self.standing()
+        else:
+            self._last = (t_s, np.asarray(suit_feet, dtype=np.float64))
+            if last is None:
+                return pose
+            speed = np.linalg.norm(self._last[1] - last[1], axis=1) / (t_s - last[0])
+            standing = list(speed < self.config.stance_speed_mps)
         for leg, foot in enumerate(self._feet):
             own = pose.joints[foot]
             anchor = self._anchor[leg]
-            if speed[leg] >= self.config.stance_speed_mps:
+            if not standing[leg]:
                 self._anchor[leg] = None
                 continue
             if anchor is None:  # the stance begins where the body puts the foot now

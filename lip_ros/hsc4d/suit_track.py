@@ -23,7 +23,21 @@ import numpy as np
 from lip_ros.core.rotations import quat_to_matrix
 from lip_ros.hsc4d.mount import HipMountPrior
 
-__all__ = ["SuitTrack"]
+__all__ = ["SuitTrack", "Sample", "pose_between"]
+
+#: A suit odometry sample: its stamp (ns), the pelvis position (3,) and unit orientation (x, y, z, w).
+Sample = tuple[int, np.ndarray, np.ndarray]
+
+
+def pose_between(t_ns: int, earlier: Sample, later: Sample) -> np.ndarray:
+    """T (4, 4) at ``t_ns`` between two samples: the position linearly, the orientation by normalised lerp."""
+    (s0, p0, q0), (s1, p1, q1) = earlier, later
+    w = (t_ns - s0) / (s1 - s0)
+    q = (1.0 - w) * q0 + w * (q1 if q0 @ q1 >= 0.0 else -q1)
+    out = np.eye(4)
+    out[:3, :3] = quat_to_matrix(q / np.linalg.norm(q))
+    out[:3, 3] = (1.0 - w) * p0 + w * p1
+    return out
 
 
 class SuitTrack:
@@ -36,7 +50,7 @@ class SuitTrack:
             raise ValueError(f"capacity {capacity} and max_gap_ns {max_gap_ns} must be >= 2 and > 0")
         self.mount = mount or HipMountPrior()
         self.max_gap_ns = int(max_gap_ns)
-        self._samples: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=capacity)
+        self._samples: deque[Sample] = deque(maxlen=capacity)
         self._stamps: deque[int] = deque(maxlen=capacity)  # the samples' stamps, searched by bisection
         self.offset_ns: int | None = None
         self.T_M_L = self.mount.T_M_L  #: the mounting used: the nominal one until :meth:`set_mount`
@@ -80,16 +94,12 @@ class SuitTrack:
                 hi = 1
             else:
                 return None
-        (s0, p0, q0), (s1, p1, q1) = self._samples[hi - 1], self._samples[hi]
-        if s1 - s0 > self.max_gap_ns:
+        earlier, later = self._samples[hi - 1], self._samples[hi]
+        if later[0] - earlier[0] > self.max_gap_ns:
             return None
-        w = (t - s0) / (s1 - s0)
-        q = (1.0 - w) * q0 + w * (q1 if q0 @ q1 >= 0.0 else -q1)
-        out = np.eye(4)
-        out[:3, :3] = quat_to_matrix(q / np.linalg.norm(q))
+        out = pose_between(t, earlier, later)
         if self.axes is not None:  # an odometry oriented in other axes than the pelvis segment's
             out[:3, :3] = out[:3, :3] @ self.axes
-        out[:3, 3] = (1.0 - w) * p0 + w * p1
         return out
 
     def lidar_motion(self, t0_ns: int, t1_ns: int) -> np.ndarray | None:

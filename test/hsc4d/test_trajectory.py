@@ -111,9 +111,9 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
     """A 24 s capture at 512 columns played in arrival order: the pipeline holds the sweeps until the jump, finds
     the suit's clock within 10 ms, and its live and refined pelvis trajectories stay within 10 cm of the truth
     (ATE after the yaw + translation fit on the 5 s after the landing), while the suit alone and kiss-icp alone
-    (the baselines) are more than twice as far off. The
-    body on them, live (its standing feet held) and optimised with the scene: checkpoints within 10 cm, foot contact within 5 cm, MPJPE under
-    20 mm, sliding no worse than the suit's own (the issue's targets are 10 cm, 3 cm, 20 mm and 1 cm a frame
+    (the baselines) are more than twice as far off. The body on them, live (its standing feet held) and optimised
+    with the scene: checkpoints within 10 cm, foot contact within 5 cm, MPJPE under 20 mm, sliding no worse than
+    the suit's own (the issue's targets are 10 cm, 3 cm, 20 mm and 1 cm a frame
     over held-out 90 s walks, measured by hsc4d_eval; this short one at 512 columns is looser). The site map
     rebuilt from the refined trajectory (S_opt) is, drift forgiven, no farther from the true surface than the live
     one (median / p90 1.44 / 4.21 against 1.51 / 4.37 cm; 1.56 / 4.30 when each sweep moved by the refined pelvis

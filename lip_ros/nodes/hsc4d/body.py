@@ -119,6 +119,7 @@ from lip_ros.hsc4d.suit_body import (
     resized_body,
 )
 from lip_ros.hsc4d.suit_restart import SuitRestart
+from lip_ros.hsc4d.suit_track import Sample, pose_between
 from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.nodes.base import (
     LATCHED,
@@ -235,7 +236,7 @@ class BodyNode(GraphNode):
         self._feet = [self.body.skeleton.index(f) for f in FEET]
         # the suit's own pelvis poses (which foot stands), for the foot lock and the optimisation
         self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
-        self._suit_poses: deque[np.ndarray] = deque(maxlen=self.body.config.capacity)
+        self._suit_poses: deque[Sample] = deque(maxlen=self.body.config.capacity)
         if p["optimise_window"]:
             set_threads(p["optimise_threads"])
             # the optimised body's legs take their length from the walk unless the body's size is given; its
@@ -310,10 +311,8 @@ class BodyNode(GraphNode):
             return odometry.stamp_ns
         if self._suit_stamps and line_ns <= self._suit_stamps[-1]:
             raise MalformedMessageError("not after the last sample")
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = quat_to_matrix(odometry.quat / norm), odometry.position
         self._suit_stamps.append(line_ns)
-        self._suit_poses.append(T)
+        self._suit_poses.append((line_ns, np.asarray(odometry.position, dtype=np.float64), odometry.quat / norm))
         return odometry.stamp_ns
 
     def _first_of_new_capture(self, stamp_ns: int) -> int:
@@ -332,13 +331,22 @@ class BodyNode(GraphNode):
         return self._lidar_clock.realign("fused odometry", stamp_ns, self._suit_clock.shift_ns)
 
     def _suit_pose(self, suit_ns: int) -> np.ndarray | None:
-        """The suit's own pelvis pose nearest ``suit_ns`` (within max_imu_gap_s), or None."""
+        """The suit's own pelvis pose (4, 4) at ``suit_ns``: between the samples around it (as the trajectory's
+        :class:`~lip_ros.hsc4d.suit_track.SuitTrack`, which the evaluation's body uses) when they are at most
+        max_imu_gap_s apart, else the nearest sample within max_imu_gap_s (the next one not here yet), or None."""
         if not self._suit_stamps:
             return None
+        gap_ns = self.params["max_imu_gap_s"] * 1e9
         stamps = np.fromiter(self._suit_stamps, dtype=np.int64, count=len(self._suit_stamps))
-        k = int(np.clip(np.searchsorted(stamps, suit_ns), 1, len(stamps) - 1)) if len(stamps) > 1 else 0
-        k = k - 1 if k > 0 and abs(stamps[k - 1] - suit_ns) < abs(stamps[k] - suit_ns) else k
-        return self._suit_poses[k] if abs(stamps[k] - suit_ns) <= self.params["max_imu_gap_s"] * 1e9 else None
+        k = int(np.searchsorted(stamps, suit_ns))
+        if 0 < k < len(stamps) and stamps[k] - stamps[k - 1] <= gap_ns:
+            return pose_between(suit_ns, self._suit_poses[k - 1], self._suit_poses[k])
+        k = min(range(max(k - 1, 0), min(k + 1, len(stamps))), key=lambda i: abs(stamps[i] - suit_ns))
+        if abs(stamps[k] - suit_ns) > gap_ns:
+            return None
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = quat_to_matrix(self._suit_poses[k][2]), self._suit_poses[k][1]
+        return T
 
     def _suit_own(self, fused: _FusedPose) -> tuple[np.ndarray, BodyPose] | None:
         """The suit's own pelvis pose at a fused pose's moment and its body on it (where a standing foot is still),
