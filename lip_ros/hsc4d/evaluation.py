@@ -207,10 +207,10 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                                lambda k: next(m for last, m in maps if last >= k), scene)
     # the fused body as the body node publishes it: at the legs' length from the walk as of the windows solved
     # before the frame came (less the half second a window takes to solve there), its standing feet held
-    joints["live"] = resized_body(live.body, result.arrival_leg_ratio).joints
+    fused = resized_body(live.body, result.arrival_leg_ratio)
     if foot_lock is not None:
-        joints["live"] = locked_bodies(skeleton, t_s, resized_body(live.body, result.arrival_leg_ratio),
-                                       live.suit_joints[:, feet], foot_lock).joints
+        fused = locked_bodies(skeleton, t_s, fused, live.suit_joints[:, feet], foot_lock)
+    joints["live"] = fused.joints
     poses["live_optimised"] = result.pelvis
     joints["live_optimised"] = resized_body(bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton,
                                                       result.legs), result.leg_ratio).joints

@@ -15,7 +15,6 @@ standing feet").
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,7 +90,9 @@ def leg_reaching(pose: BodyPose, skeleton: Skeleton, leg: int, ankle_to: np.ndar
         local[j] = glob[parents[j]].T @ glob[j]
     joints = pose.joints.copy()
     joints[knee] = K_new
-    below = [j for j in range(len(joints)) if _descends(parents, j, ankle)]
+    below = [ankle]  # the ankle and every joint under it move with it
+    for j in below:
+        below += skeleton.children(j)
     joints[below] += ankle_to - A
     return BodyPose(local, glob, joints)
 
@@ -106,15 +107,6 @@ def _leg_axes(leg: np.ndarray, hinge: np.ndarray) -> np.ndarray | None:
         return None
     forward /= norm
     return np.stack([u, forward, np.cross(u, forward)])
-
-
-def _descends(parents: Sequence[int], j: int, top: int) -> bool:
-    """Whether joint ``j`` is ``top`` or below it."""
-    while j >= 0:
-        if j == top:
-            return True
-        j = parents[j] if j else -1
-    return False
 
 
 class FootLock:

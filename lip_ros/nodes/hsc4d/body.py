@@ -22,7 +22,9 @@ where they stood (:class:`lip_ros.hsc4d.foot_lock.FootLock`): which foot stands
 comes from the suit's own feet (its segments on its own ``/mocap/odometry``,
 where a standing foot is still), and the leg's hip and knee are turned to keep
 its foot joint there; the pelvis stays ``/hsc4d/odometry``'s. A frame without
-the suit's odometry near it holds nothing, and the stances start again.
+the suit's odometry near it keeps the feet that stood standing, for up to
+half a second; a new capture starts the stances again. The suit's pelvis is
+interpolated between its samples at each frame's moment.
 
 With ``optimise_window`` > 0 it also runs the scene-aware optimisation
 (:class:`lip_ros.hsc4d.scene_optimisation.SceneOptimiser`): each posed frame
