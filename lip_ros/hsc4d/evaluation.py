@@ -33,9 +33,10 @@ ramps, the terrace) and the error at the end.
 The body: the suit's joints (:class:`~lip_ros.hsc4d.suit_body.SuitBody`) on each
 method's pelvis, scaled to the first fused pelvis height as the body node does;
 the live graph's, as the body node publishes it, at the legs' length from the
-walk from the frame after the window that first believes it on, its standing
-feet held (:mod:`lip_ros.hsc4d.foot_lock`); the optimised and refined bodies'
-at the walk's too.
+walk from the frame after the window that first believes it on; the optimised
+and refined bodies' at the walk's too; the standing feet of all three held
+(:mod:`lip_ros.hsc4d.foot_lock`), as the body node and the refinement hold
+them.
 :func:`body_metrics` reports, against the truth and under the same alignment,
 the checkpoint error (the foot joint at the middle of each true stance), the
 foot contact error (a standing foot's height above the true surface under it
@@ -152,11 +153,12 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
                 scene: SceneOptimisationConfig | None = None,
                 foot_lock: FootLockConfig | None = FOOT_LOCK) -> TrajectoryRun:
     """Play ``capture`` through a :class:`CaptureRefiner` (``progress(k, n)`` after each sweep), pose the body on
-    each method's trajectory and optimise the live one and refine the capture with ``scene``, the live graph's
-    standing feet held by ``foot_lock`` (None: not held); :class:`CaptureLost` if a sweep was not posed or the
-    capture cannot be refined."""
+    each method's trajectory and optimise the live one and refine the capture with ``scene``, the standing feet of
+    the live graph's, live optimised and refined bodies held by ``foot_lock`` (None: not held); :class:`CaptureLost`
+    if a sweep was not posed or the capture cannot be refined."""
     scene = scene or SceneOptimisationConfig()
-    refiner = CaptureRefiner(RefinementConfig(trajectory=config or TrajectoryConfig(), scene=scene))
+    refiner = CaptureRefiner(RefinementConfig(trajectory=config or TrajectoryConfig(), scene=scene,
+                                              foot_lock=foot_lock))
     pipeline = refiner.pipeline
     steps, sweep_ms = 0, []
     kiss, lidar_only = KissIcpAlone(), {}  # Baseline2's sensor pose per sweep stamp
@@ -212,8 +214,11 @@ def run_capture(capture: SiteCapture, config: TrajectoryConfig | None = None,
         fused = locked_bodies(skeleton, t_s, fused, live.suit_joints[:, feet], foot_lock)
     joints["live"] = fused.joints
     poses["live_optimised"] = result.pelvis
-    joints["live_optimised"] = resized_body(bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton,
-                                                      result.legs), result.leg_ratio).joints
+    optimised = resized_body(bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton, result.legs),
+                             result.leg_ratio)
+    if foot_lock is not None:
+        optimised = locked_bodies(skeleton, t_s, optimised, live.suit_joints[:, feet], foot_lock)
+    joints["live_optimised"] = optimised.joints
     for term, name in zip(TERMS, ABLATIONS, strict=True):
         ablated = refiner.refine(without(scene, term), refined.sole_m)
         poses[name], joints[name] = ablated.pelvis, ablated.body.joints

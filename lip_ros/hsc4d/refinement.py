@@ -24,7 +24,9 @@ odometry: S_live). :meth:`CaptureRefiner.refine` then
    nearest sighting may come from a later visit, placed by that time's pose
    error, and the contact term then moved the feet by the difference
    (docs/hsc4d/optimisation.md "The map each window stands on");
-3. rebuilds the map from the refined trajectory (S_opt: each point moved by the
+3. holds the refined body's standing feet where they stood, as the live graph
+   holds its bodies' (:mod:`~lip_ros.hsc4d.foot_lock`, ``RefinementConfig.foot_lock``);
+4. rebuilds the map from the refined trajectory (S_opt: each point moved by the
    shift of the sweep that placed it, :func:`sweep_shifts`, :meth:`SiteMap.shifted`).
 
 Memory: about 4 KB per sweep (the bodies), 20 B per map point and the views
@@ -43,6 +45,7 @@ import numpy as np
 
 from lip_ros.core.imu_sync import ImuSampleLike
 from lip_ros.core.skeleton import load_skeleton
+from lip_ros.hsc4d.foot_lock import FOOT_LOCK, FootLockConfig, locked_bodies
 from lip_ros.hsc4d.scene_optimisation import (
     MAX_WAIT_WINDOWS,
     SceneOptimisationConfig,
@@ -77,6 +80,7 @@ class RefinementConfig:
 
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     scene: SceneOptimisationConfig = field(default_factory=SceneOptimisationConfig)
+    foot_lock: FootLockConfig | None = FOOT_LOCK  # the refined body's standing feet held (None: not)
 
 
 @dataclass(frozen=True)
@@ -264,6 +268,8 @@ class CaptureRefiner:
                                    lambda step: self.views.at(step, shifts), scene, sole_m, leg_ratio=ratio)
         window_s = np.full(len(result.windows), (time.perf_counter() - t0) / max(len(result.windows), 1))
         body = resized_body(bent_legs(moved_body(live.body, live.pelvis, result.pelvis), skeleton, result.legs), ratio)
+        if self.config.foot_lock is not None:
+            body = locked_bodies(skeleton, t_s, body, suit_feet, self.config.foot_lock)
         rebuilt = self.pipeline.site.shifted(self._shifts(live, result.pelvis))
         return Refinement(live.stamps_ns, graph, result.pelvis, body, rebuilt, result.sole_m, window_s,
                           time.perf_counter() - start, ratio)

@@ -156,6 +156,14 @@ class SuitBody:
         self.skeleton = self._contract.scaled(scale)
         return scale
 
+    def pelvis_rotation(self, suit_ns: int) -> np.ndarray | None:
+        """R_I_P (3, 3): the pelvis segment's orientation in the suit's world at suit-clock time ``suit_ns``, or None
+        when a segment has no sample near it."""
+        result = self.sync.query(int(suit_ns))
+        if result.frame_status == FrameStatus.SKIP:
+            return None
+        return quat_to_matrix(result.quat[self.segments.index(self.pelvis_segment)])
+
     def pose(self, suit_ns: int, T_map_P: np.ndarray) -> tuple[BodyPose | None, str]:
         """The body at suit-clock time ``suit_ns`` on the fused pelvis pose ``T_map_P`` (4, 4); (None, why) when
         a segment has no sample near it, else (pose, "") or (pose, which segments were held)."""

@@ -20,10 +20,10 @@ from collections import deque
 
 import numpy as np
 
-from lip_ros.core.rotations import quat_to_matrix
+from lip_ros.core.rotations import geodesic_angle, nearest_axes_turn, quat_to_matrix
 from lip_ros.hsc4d.mount import HipMountPrior
 
-__all__ = ["SuitTrack", "Sample", "pose_between"]
+__all__ = ["SuitTrack", "Sample", "axes_columns", "odometry_axes", "pose_between"]
 
 #: A suit odometry sample: its stamp (ns), the pelvis position (3,) and unit orientation (x, y, z, w).
 Sample = tuple[int, np.ndarray, np.ndarray]
@@ -38,6 +38,26 @@ def pose_between(t_ns: int, earlier: Sample, later: Sample) -> np.ndarray:
     out[:3, :3] = quat_to_matrix(q / np.linalg.norm(q))
     out[:3, 3] = (1.0 - w) * p0 + w * p1
     return out
+
+
+def odometry_axes(R_odometry: np.ndarray, R_I_P: np.ndarray, max_tilt_deg: float) -> tuple[float, np.ndarray | None]:
+    """How far (deg) the suit odometry's pelvis up is from the pelvis IMU's at one moment (``R_odometry`` (3, 3),
+    the odometry's orientation, and ``R_I_P``, the pelvis segment's, both in the suit's world), and, when farther
+    than ``max_tilt_deg`` and the two differ by a turn of the axes within it (another axis convention: a ROS
+    base_link's x forward, y left, z up, say), that turn: the segment's axes in the odometry's
+    (``R_odometry @ axes`` is the segment's orientation); else None."""
+    up = np.array([0.0, 0.0, 1.0])
+    tilt = float(np.degrees(np.arccos(np.clip((R_I_P.T @ up) @ (R_odometry.T @ up), -1.0, 1.0))))
+    if tilt <= max_tilt_deg:
+        return tilt, None
+    between = R_odometry.T @ R_I_P
+    axes = nearest_axes_turn(between)
+    return tilt, axes if np.degrees(geodesic_angle(axes, between)) <= max_tilt_deg else None
+
+
+def axes_columns(axes: np.ndarray) -> str:
+    """A turn of the axes (3, 3) as where each axis goes, e.g. "+y, +z, +x"."""
+    return ", ".join("".join(("+" if v > 0 else "-") + "xyz"[i] for i, v in enumerate(c) if v) for c in axes.T)
 
 
 class SuitTrack:

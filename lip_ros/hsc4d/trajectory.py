@@ -53,7 +53,7 @@ import numpy as np
 from lip_ros.core.frames import UP_M
 from lip_ros.core.imu_sync import ImuSampleLike
 from lip_ros.core.metrics import align_yaw_translation
-from lip_ros.core.rotations import axis_angle_to_matrix, geodesic_angle, nearest_axes_turn
+from lip_ros.core.rotations import axis_angle_to_matrix
 from lip_ros.hsc4d.gyro_bias import GyroBiasConfig
 from lip_ros.hsc4d.jump_sync import JumpSync, JumpSyncConfig
 from lip_ros.hsc4d.lidar_odometry import LidarOdometry, OdometryConfig, WearerFilter
@@ -74,7 +74,7 @@ from lip_ros.hsc4d.pose_graph import LiveTrajectoryGraph, PoseGraphConfig, fuse_
 from lip_ros.hsc4d.resume import TrajectoryResume
 from lip_ros.hsc4d.sensors import SUIT_RATE_HZ
 from lip_ros.hsc4d.site_map import SiteMap, SiteMapConfig
-from lip_ros.hsc4d.suit_track import SuitTrack
+from lip_ros.hsc4d.suit_track import SuitTrack, axes_columns, odometry_axes
 from lip_ros.hsc4d.sweep_height import SweepHeightConfig, sweep_height
 
 __all__ = ["TrajectoryConfig", "TrajectoryStep", "StrideScale", "TrajectoryPipeline", "RATE_CAPPED", "RESUME_WAITS",
@@ -331,9 +331,7 @@ class TrajectoryPipeline:
                     "model axes (x left, y up, z forward) and the suit IMUs' world")
             if self.odometry_axes is None:
                 return f"{where}; {said}"
-            columns = ", ".join("".join(("+" if v > 0 else "-") + "xyz"[i] for i, v in enumerate(c) if v)
-                                for c in self.odometry_axes.T)
-            return f"{where}; {said}; its axes taken for the segment's x, y, z: {columns}"
+            return f"{where}; {said}; its axes taken for the segment's x, y, z: {axes_columns(self.odometry_axes)}"
         if self.map_frame is None:
             return f"synced; fixing the map frame from the first sweeps; {len(self._held)} sweeps to register"
         check = self.mount_disagreement_deg
@@ -661,13 +659,8 @@ class TrajectoryPipeline:
         if pelvis is None or not np.isfinite(R_I_L).all():
             return
         R_I_P = R_I_L @ self.rotation.R_M_L.T  # the pelvis IMU's
-        up = np.array([0.0, 0.0, 1.0])
-        self.odometry_tilt_deg = float(np.degrees(np.arccos(np.clip((R_I_P.T @ up) @ (pelvis[:3, :3].T @ up), -1.0,
-                                                                    1.0))))
-        if self.odometry_tilt_deg <= self.config.max_odometry_tilt_deg:
-            return
-        axes = nearest_axes_turn(pelvis[:3, :3].T @ R_I_P)
-        if np.degrees(geodesic_angle(axes, pelvis[:3, :3].T @ R_I_P)) <= self.config.max_odometry_tilt_deg:
+        self.odometry_tilt_deg, axes = odometry_axes(pelvis[:3, :3], R_I_P, self.config.max_odometry_tilt_deg)
+        if axes is not None:
             self.odometry_axes = axes
             self.suit.axes = axes
 

@@ -19,6 +19,8 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from lip_ros.core.body import BodyModel
+from lip_ros.core.frames import R_L_M_FACING_X
+from lip_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from lip_ros.hsc4d.sensors import SUIT_RATE_HZ
 from lip_ros.rig.capture import EPOCH_NS
 from lip_ros.rig.hip_lidar import HipMount
@@ -35,10 +37,14 @@ from lip_ros.rig.suit_odometry import (
 )
 from lip_ros.rig.terrain import SCENES, Terrain
 
-__all__ = ["SiteCaptureConfig", "SiteTruth", "SiteCapture", "TRUTH_RATE_HZ"]
+__all__ = ["ODOMETRY_AXES", "SiteCaptureConfig", "SiteTruth", "SiteCapture", "TRUTH_RATE_HZ"]
 
 #: Rate of the ground truth trajectories (Hz).
 TRUTH_RATE_HZ = 100.0
+
+#: The axes of the suit odometry's orientation in the model axes (x left, y up, z forward), by name: the pelvis
+#: segment's own, or a ROS base_link's (x forward, y left, z up).
+ODOMETRY_AXES = {"model": np.eye(3), "base_link": R_L_M_FACING_X.T}
 
 
 @dataclass(frozen=True)
@@ -78,13 +84,17 @@ class SiteCaptureConfig:
     # to this much (deg, at most 3; 0: perfectly still): a variant for the still start the method measures the
     # pelvis gyro's bias on
     sway_deg: float = 0.0
+    # the axes ``/mocap/odometry``'s orientation is given in (ODOMETRY_AXES): the pelvis segment's, in the contract's
+    # model axes (x left, y up, z forward), or a variant in a ROS base_link's (x forward, y left, z up), which the
+    # contract does not rule out
+    odometry_axes: str = "model"
 
     def __post_init__(self) -> None:
         if (self.columns not in (512, 1024, 2048) or self.rate_hz not in (10.0, 20.0) or self.seconds <= 0
                 or self.beams not in (16, 32, 64, 128) or self.scene not in SCENES
                 or not 0.0 <= self.mount_tilt_up_deg <= 60.0 or not -180.0 <= self.mount_spin_deg <= 180.0
                 or not 20.0 <= self.suit_rate_hz <= 1000.0 or self.suit_noise_scale < 0.0
-                or not 0.0 <= self.sway_deg <= 3.0
+                or not 0.0 <= self.sway_deg <= 3.0 or self.odometry_axes not in ODOMETRY_AXES
                 or (self.body_scale is not None and not 0.5 <= self.body_scale <= 1.5)
                 or (self.mount_lever_m is not None and (len(self.mount_lever_m) != 3
                                                         or not np.isfinite(self.mount_lever_m).all()))):
@@ -176,6 +186,10 @@ class SiteCapture:
                                      self.suit.clock_offset_s, np.random.default_rng([self.config.seed, 303]),
                                      replace(self.config.odometry, rate_hz=self.config.suit_rate_hz))
         odo.stamp_ns = odo.stamp_ns + self.epoch_ns
+        if self.config.odometry_axes != "model":
+            axes = ODOMETRY_AXES[self.config.odometry_axes]  # the odometry's axes in the pelvis segment's
+            odo.quat = matrix_to_quat(quat_to_matrix(odo.quat) @ axes)
+            odo.velocity = odo.velocity @ axes  # in the pelvis's own frame, in those axes
         return odo
 
     def truth(self, t: np.ndarray | None = None) -> SiteTruth:

@@ -29,10 +29,11 @@ Rig variants (as ``lip_rig site-bag`` takes them, ``lip_ros.tools.site_variants`
 beams), ``--mount-tilt-up DEG`` (its true tilt), ``--mount-spin DEG`` (turned about its own axis),
 ``--mount-lever X Y Z`` (its lever arm: the other hip), ``--body-scale X`` (the wearer's size), ``--suit-rate HZ``
 (the suit's rate), ``--suit-noise-scale X`` (the suit's IMU errors X times the rig's), ``--sway DEG`` (the wearer
-sways in the A-pose), ``--scene`` (what the site holds); ``--no-check-mount`` turns
+sways in the A-pose), ``--scene`` (what the site holds), ``--odometry-axes base_link`` (the suit's odometry
+oriented in a ROS base_link's axes); ``--no-check-mount`` turns
 the method's checks of the mounting at the start off (its spin and its hip), ``--no-check-hip`` only that of the
-hip. ``--foot-lock MPS M`` sets the live graph's foot lock (the body node's, ``lip_ros.hsc4d.foot_lock``),
-``--no-foot-lock`` turns it off.
+hip. ``--foot-lock MPS M`` sets the foot lock of the live graph's, live optimised and refined bodies (the body
+node's and the refinement's, ``lip_ros.hsc4d.foot_lock``), ``--no-foot-lock`` turns it off.
 Held-out seeds: 1000 and up (development used 0-20).
 """
 
@@ -158,9 +159,9 @@ def main(argv: list[str] | None = None) -> int:
                              "at the start (params/hsc4d.yaml's check_mount_hip false)")
     parser.add_argument("--foot-lock", type=float, nargs=2, metavar=("MPS", "M"),
                         default=(FOOT_LOCK.stance_speed_mps, FOOT_LOCK.release_m),
-                        help="the live graph's foot lock: a foot stands below this speed of the suit's own, held "
-                             "within this distance of the body's")
-    parser.add_argument("--no-foot-lock", action="store_true", help="the live graph's standing feet not held")
+                        help="the bodies' foot lock (live graph, live optimised, refined): a foot stands below this "
+                             "speed of the suit's own, held within this distance of the body's")
+    parser.add_argument("--no-foot-lock", action="store_true", help="the bodies' standing feet not held")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     try:

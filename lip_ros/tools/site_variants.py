@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from lip_ros.rig.site_capture import SiteCaptureConfig
+from lip_ros.rig.site_capture import ODOMETRY_AXES, SiteCaptureConfig
 from lip_ros.rig.terrain import SCENES
 
 __all__ = ["add_site_arguments", "site_capture_config"]
@@ -40,6 +40,9 @@ def add_site_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sway", type=float, default=d.sway_deg, metavar="DEG",
                         help="a rig variant: the wearer sways in the A-pose, the pelvis turning by up to DEG about "
                              "each axis (the rig's own stands perfectly still)")
+    parser.add_argument("--odometry-axes", choices=ODOMETRY_AXES, default=d.odometry_axes,
+                        help="a rig variant: the axes of /mocap/odometry's orientation: the pelvis segment's (model: "
+                             "x left, y up, z forward) or a ROS base_link's (x forward, y left, z up)")
     parser.add_argument("--scene", choices=SCENES, default=d.scene,
                         help="a rig variant: what the site holds besides the ground and the walk's terrace, stairs and "
                              "ramp: all the rig's own objects (site), the facades along its edges only (sparse), "
@@ -52,4 +55,4 @@ def site_capture_config(args: argparse.Namespace, seed: int) -> SiteCaptureConfi
                              mount_tilt_up_deg=args.mount_tilt_up, mount_spin_deg=args.mount_spin,
                              mount_lever_m=args.mount_lever and tuple(args.mount_lever), suit_rate_hz=args.suit_rate,
                              suit_noise_scale=args.suit_noise_scale, body_scale=args.body_scale,
-                             scene=args.scene, sway_deg=args.sway)
+                             scene=args.scene, sway_deg=args.sway, odometry_axes=args.odometry_axes)

@@ -64,9 +64,7 @@ def test_every_sweep_becomes_a_body_pose(replay):
     assert topics[ODOMETRY_TOPIC].count == frames_in
     for topic in (HSC4D_TOPICS.joint_states, HSC4D_TOPICS.root_pose, HSC4D_TOPICS.joint_poses):
         assert topics[topic].count == frames_in
-    last = {}
-    for m in read_messages(out, ["/diagnostics"]):
-        last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
+    last = _last_statuses(out)
     trajectory = last["hsc4d_trajectory_node: frames"]
     assert trajectory.level == 0 and trajectory.message == "tracking", trajectory
     # the rig's own mounting: the checks at the start leave it as configured, and the summary says what they found
@@ -105,9 +103,7 @@ def test_outputs_follow_the_contract(replay):
     assert sizes[-1] > 10_000 and sizes == sorted(sizes), sizes
     site = cloud_to_xyz(maps[-1].msg)
     assert len(np.unique(np.floor(site / SiteMapConfig().voxel_m).astype(np.int64), axis=0)) > 0.999 * len(site)
-    last = {}
-    for m in read_messages(out, ["/diagnostics"]):
-        last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
+    last = _last_statuses(out)
     counts = last["hsc4d_trajectory_node: frames"].values  # the map as the node last had it: no less, none refused
     assert int(counts["map points"]) >= sizes[-1] and int(counts["map points not kept (full)"]) == 0
     # the body's size as reported (the standing pelvis height's, or the legs' from the walk once believed)
@@ -119,24 +115,38 @@ def test_outputs_follow_the_contract(replay):
 
 
 def test_the_fused_body_holds_its_standing_feet(replay):
-    """The body node's foot lock (lip_ros.hsc4d.foot_lock) over DDS: a standing foot joint keeps its horizontal
-    position from frame to frame (to the message's float64) for much of the walk, which a body hanging on the fused
-    pelvis never does; its bones keep their lengths (test_outputs_follow_the_contract); /diagnostics says which foot
-    stands and how many anchors were let go."""
+    """The body node's foot locks (lip_ros.hsc4d.foot_lock) over DDS: a standing foot joint of the fused body and of
+    the optimised one keeps its horizontal position from frame to frame (to the message's float64) for much of the
+    walk, which a body hanging on the fused pelvis never does; its bones keep their lengths
+    (test_outputs_follow_the_contract); /diagnostics says which foot stands and how many anchors were let go."""
     _, out, _ = replay
+    assert _held_while_walking(out) > 0.3
+    assert _held_while_walking(out, OPTIMISED_TOPICS.joint_poses) > 0.3  # the optimised body's, its lock's own
+    body = _last_statuses(out)["hsc4d_body_node: frames"].values
+    assert body["feet standing"] in ("none", "left", "right", "left, right") and int(body["foot anchors let go"]) >= 0
+    assert int(body["optimised: foot anchors let go"]) >= 0
+    assert body["suit odometry's orientation read in"] == "the pelvis segment's"
+
+
+def _held_while_walking(out: Path, topic: str = HSC4D_TOPICS.joint_poses) -> float:
+    """Of the frame pairs of ``topic`` (joint poses) where the pelvis walks (0.5 m/s or more; more than 40 of them),
+    the share where a foot joint keeps its horizontal position (to the message's float64)."""
     skeleton = load_skeleton()
     feet = [skeleton.index(f) for f in FEET]
-    arrays = [msg_to_pose_array(m.msg) for m in read_messages(out, [HSC4D_TOPICS.joint_poses])]
+    arrays = [msg_to_pose_array(m.msg) for m in read_messages(out, [topic])]
     poses, t = np.array([a.positions for a in arrays]), 1e-9 * np.array([a.stamp_ns for a in arrays])
-    walking = np.linalg.norm(np.diff(poses[:, 0, :2], axis=0), axis=-1) > 0.5 * np.diff(t)  # pelvis at 0.5 m/s
+    walking = np.linalg.norm(np.diff(poses[:, 0, :2], axis=0), axis=-1) > 0.5 * np.diff(t)
     held = np.linalg.norm(np.diff(poses[:, feet, :2], axis=0), axis=-1) < 1e-9  # (N - 1, 2)
     assert walking.sum() > 40, walking.sum()
-    assert held[walking].any(axis=1).mean() > 0.3, held[walking].mean(axis=0)
+    return float(held[walking].any(axis=1).mean())
+
+
+def _last_statuses(out: Path) -> dict:
+    """The last /diagnostics status of each name in the outputs."""
     last = {}
     for m in read_messages(out, ["/diagnostics"]):
         last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
-    body = last["hsc4d_body_node: frames"].values
-    assert body["feet standing"] in ("none", "left", "right", "left, right") and int(body["foot anchors let go"]) >= 0
+    return last
 
 
 def test_accuracy_and_clock_offset_as_offline(replay):
@@ -165,9 +175,7 @@ def test_the_body_node_optimises_every_frame_with_the_scene(replay):
     poses = [msg_to_pose_array(m.msg) for m in read_messages(out, [OPTIMISED_TOPICS.joint_poses])]
     assert len(poses) == frames_in
     assert np.allclose([p.positions[0] for p in poses], [o.position for o in optimised], atol=1e-6)
-    last = {}
-    for m in read_messages(out, ["/diagnostics"]):
-        last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
+    last = _last_statuses(out)
     body = last["hsc4d_body_node: frames"].values
     assert int(body["optimisation: frames optimised"]) == frames_in and int(body["optimisation: frames waiting"]) == 0
     assert 0.0 < float(body["optimisation: sole height (m)"]) < 0.1
@@ -222,9 +230,7 @@ def test_a_20hz_lidar_and_a_240hz_suit_are_taken_sweep_by_sweep_and_sample_by_sa
     frames_in = topics[HIP_LIDAR_TOPIC].count
     assert frames_in >= 19 * SECONDS and f"frames in: {frames_in}; pose {frames_in}\n" in proc.stdout, proc.stdout
     assert _number(r"pelvis ATE ([\d.]+) cm", proc.stdout) < 10.0
-    last = {}
-    for m in read_messages(out, ["/diagnostics"]):
-        last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
+    last = _last_statuses(out)
     for name, topic in (("hsc4d_trajectory_node: suit pelvis imu", "/mocap/pelvis/imu"),
                         ("hsc4d_trajectory_node: suit odometry", "/mocap/odometry"),
                         ("hsc4d_body_node: suit left_foot", "/mocap/left_foot/imu")):
@@ -252,8 +258,29 @@ def test_a_lidar_on_the_other_hip_is_put_there_and_said(tmp_path):
     said = "the wearer's body at the start puts the LiDAR on the left hip"
     assert f"hip: {said}" in proc.stdout, proc.stdout
     assert f"[hsc4d_trajectory_node]: mounting: {said}" in proc.stdout + proc.stderr
-    last = {}
-    for m in read_messages(out, ["/diagnostics"]):
-        last.update((s.name, s) for s in msg_to_diagnostics(m.msg).statuses)
-    trajectory = last["hsc4d_trajectory_node: frames"]
+    trajectory = _last_statuses(out)["hsc4d_trajectory_node: frames"]
     assert trajectory.level == 1 and said in trajectory.message and "mount_lever_m" in trajectory.message
+
+
+def test_a_suit_odometry_in_base_link_axes_is_read_in_the_pelvis_segments(tmp_path):
+    """The suit's /mocap/odometry oriented in a ROS base_link's axes (x forward, y left, z up; the contract does not
+    say which): both nodes find the turn from the pelvis IMU at the start (lip_ros.hsc4d.suit_track.odometry_axes)
+    and say so; every sweep is posed within the 10 cm target and the body node's suit feet stand where the suit's
+    do, so the foot lock holds the standing feet as on the rig's own odometry (read as it came, the suit's feet
+    turned about its pelvis by 90 deg: none held)."""
+    bag, out = tmp_path / "capture", tmp_path / "outputs"
+    write_site_bag(SiteCapture(SiteCaptureConfig(seed=3, seconds=SECONDS, columns=512, odometry_axes="base_link")),
+                   bag, progress=False)
+    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out), *HSC4D_PLAYBACK],
+                          capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    frames_in = bag_topics(bag)[HIP_LIDAR_TOPIC].count
+    assert f"frames in: {frames_in}; pose {frames_in}\n" in proc.stdout, proc.stdout
+    assert _number(r"pelvis ATE ([\d.]+) cm", proc.stdout) < 10.0
+    assert _held_while_walking(out) > 0.3
+    last = _last_statuses(out)
+    turn = "its axes taken for the segment's x, y, z: +y, +z, +x"
+    assert turn in last["hsc4d_trajectory_node: frames"].message
+    body = last["hsc4d_body_node: frames"]
+    assert body.level == 1 and turn in body.message and turn in body.values["suit odometry's orientation read in"]
+    assert "[hsc4d_body_node]: suit odometry: " in proc.stdout + proc.stderr

@@ -17,14 +17,19 @@ under that pelvis), and the scale is logged and reported. The suit's topics
 than each waking the executor: that halved the node's CPU
 (``GraphNode.add_input(polled=True)``).
 
-With ``foot_lock`` (the default) the standing feet of the fused body are held
-where they stood (:class:`lip_ros.hsc4d.foot_lock.FootLock`): which foot stands
+With ``foot_lock`` (the default) the standing feet of the fused body, and of
+the optimised one below, are held where they stood
+(:class:`lip_ros.hsc4d.foot_lock.FootLock`, one for each): which foot stands
 comes from the suit's own feet (its segments on its own ``/mocap/odometry``,
 where a standing foot is still), and the leg's hip and knee are turned to keep
-its foot joint there; the pelvis stays ``/hsc4d/odometry``'s. A frame without
+its foot joint there; the pelvis stays the body's. A frame without
 the suit's odometry near it keeps the feet that stood standing, for up to
 half a second; a new capture starts the stances again. The suit's pelvis is
-interpolated between its samples at each frame's moment.
+interpolated between its samples at each frame's moment. The odometry's
+orientation is checked against the pelvis segment's once per capture, as the
+trajectory node checks it: an odometry in other axes (a ROS base_link's, say)
+is read in the segment's (``suit_track.odometry_axes``), else the suit's own
+feet would turn about its pelvis and never stand.
 
 With ``optimise_window`` > 0 it also runs the scene-aware optimisation
 (:class:`lip_ros.hsc4d.scene_optimisation.SceneOptimiser`): each posed frame
@@ -83,7 +88,7 @@ from collections import Counter, deque
 from dataclasses import dataclass, replace
 from pathlib import Path
 from traceback import format_exception
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from nav_msgs.msg import Odometry
@@ -121,7 +126,7 @@ from lip_ros.hsc4d.suit_body import (
     resized_body,
 )
 from lip_ros.hsc4d.suit_restart import SuitRestart
-from lip_ros.hsc4d.suit_track import Sample, pose_between
+from lip_ros.hsc4d.suit_track import Sample, axes_columns, odometry_axes, pose_between
 from lip_ros.hsc4d.trajectory import TrajectoryConfig
 from lip_ros.nodes.base import (
     LATCHED,
@@ -143,6 +148,7 @@ from lip_ros.outputs import pose_cdr
 
 __all__ = ["BodyNode", "main"]
 
+_MAX_ODOMETRY_TILT_DEG = TrajectoryConfig.max_odometry_tilt_deg  # as the trajectory node checks it
 _SOLVE_STOP_WAIT_S = 5.0  # at shutdown, how long to wait for an optimisation window being solved
 _POSE_TYPES = (("joint_states", "sensor_msgs/msg/JointState"), ("root_pose", "geometry_msgs/msg/PoseStamped"),
                ("joint_poses", "geometry_msgs/msg/PoseArray"))
@@ -167,6 +173,17 @@ class _FusedPose:
     deadline: float  # it goes on with the suit data there is then (monotonic s)
 
 
+class _OptimisedFrame(NamedTuple):
+    """A posed frame in the optimiser: what its optimised body is published with, and its foot lock's inputs."""
+
+    stamp_ns: int
+    frame_id: str
+    pose: BodyPose  # on the fused pelvis
+    T_map_P: np.ndarray  # the fused pelvis
+    t_s: float  # on the node's LiDAR time line
+    suit_feet: np.ndarray  # (2, 3): the suit's own foot joints
+
+
 class BodyNode(GraphNode):
     """The fused body of the HSC4D graph."""
 
@@ -189,8 +206,8 @@ class BodyNode(GraphNode):
         "suit_odometry_topic": Param("input: the suit's own nav_msgs/Odometry (a new capture beginning; which "
                                      "foot stands, for the foot lock and the optimisation)"),
         "map_topic": Param("input (latched): the map of hsc4d_trajectory_node (the ground under the feet)"),
-        "foot_lock": Param("hold the fused body's standing feet where they stood (which foot stands: the suit's own "
-                           "feet on suit_odometry_topic; lip_ros.hsc4d.foot_lock)"),
+        "foot_lock": Param("hold the standing feet of the fused and the optimised bodies where they stood (which "
+                           "foot stands: the suit's own feet on suit_odometry_topic; lip_ros.hsc4d.foot_lock)"),
         "optimise_window": Param("frames per scene-aware optimisation window (0: no optimisation)",
                                  lambda v: None if v == 0 or v >= 3 else f"must be 0 or >= 3, got {v}"),
         "optimise_flush_s": Param("a partial window is optimised once no fused pose came for this long", positive),
@@ -235,10 +252,15 @@ class BodyNode(GraphNode):
         self._out = self._pose_publishers(HSC4D_TOPICS)
         self._optimiser = None
         self._lock = FootLock(self.body.skeleton) if p["foot_lock"] else None
+        self._optimised_lock = FootLock(self.body.skeleton) if p["foot_lock"] and p["optimise_window"] else None
         self._feet = [self.body.skeleton.index(f) for f in FEET]
         # the suit's own pelvis poses (which foot stands), for the foot lock and the optimisation
         self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
         self._suit_poses: deque[Sample] = deque(maxlen=self.body.config.capacity)
+        # the suit odometry's pelvis up vs its pelvis IMU's (NaN: not checked yet), and the segment's axes in the
+        # odometry's where another convention is found (once per capture)
+        self._odometry_tilt_deg = float("nan")
+        self._odometry_axes: np.ndarray | None = None
         if p["optimise_window"]:
             set_threads(p["optimise_threads"])
             # the optimised body's legs take their length from the walk unless the body's size is given; its
@@ -327,8 +349,10 @@ class BodyNode(GraphNode):
             self._closing.append(self._optimiser)
             self._optimiser = BackgroundOptimiser(SceneOptimiser(self._optimiser.config))
         self._scale_from_height = self.params["body_scale"] == 0
-        if self._lock is not None:
-            self._lock.reset()
+        for lock in (self._lock, self._optimised_lock):
+            if lock is not None:
+                lock.reset()
+        self._odometry_tilt_deg, self._odometry_axes = float("nan"), None
         self._new_capture = None
         return self._lidar_clock.realign("fused odometry", stamp_ns, self._suit_clock.shift_ns)
 
@@ -357,8 +381,38 @@ class BodyNode(GraphNode):
         T_suit = self._suit_pose(suit_ns)
         if T_suit is None and self.take_waiting("suit odometry"):  # polled: taken at the drain's pace
             T_suit = self._suit_pose(suit_ns)
-        suit = None if T_suit is None else self.body.pose(suit_ns, T_suit)[0]
+        if T_suit is None:
+            return None
+        if not np.isfinite(self._odometry_tilt_deg):
+            self._check_odometry_axes(suit_ns, T_suit[:3, :3])
+        if self._odometry_axes is not None:  # read in the pelvis segment's axes
+            T_suit[:3, :3] = T_suit[:3, :3] @ self._odometry_axes
+        suit = self.body.pose(suit_ns, T_suit)[0]
         return None if suit is None else (T_suit, suit)
+
+    def _check_odometry_axes(self, suit_ns: int, R_odometry: np.ndarray) -> None:
+        """Once per capture, at the first frame with both: the suit odometry's orientation against its pelvis
+        segment's (:func:`~lip_ros.hsc4d.suit_track.odometry_axes`, as the trajectory node does): an odometry in
+        other axes (a ROS base_link's, say) is read in the segment's from then on, so that its feet stand where the
+        suit's do."""
+        R_I_P = self.body.pelvis_rotation(suit_ns)
+        if R_I_P is None:
+            return
+        self._odometry_tilt_deg, self._odometry_axes = odometry_axes(R_odometry, R_I_P, _MAX_ODOMETRY_TILT_DEG)
+        if self._odometry_tilt_deg > _MAX_ODOMETRY_TILT_DEG:
+            self.get_logger().warning(f"suit odometry: {self._odometry_axes_status()}")
+
+    def _odometry_axes_status(self) -> str:
+        """How the suit odometry's orientation is read: in the pelvis segment's axes or in its own turned."""
+        tilt = self._odometry_tilt_deg
+        if not np.isfinite(tilt):
+            return "not checked yet"
+        if tilt <= _MAX_ODOMETRY_TILT_DEG:
+            return "the pelvis segment's"
+        said = f"its pelvis up {tilt:.0f} deg from the pelvis IMU's"
+        if self._odometry_axes is None:
+            return f"{said}, not a turn of the axes: its feet taken as they come (the foot lock and the optimisation)"
+        return f"{said}: its axes taken for the segment's x, y, z: {axes_columns(self._odometry_axes)}"
 
     def _optimise_frame(self, fused: _FusedPose, pose: BodyPose, suit: tuple[np.ndarray, BodyPose] | None) -> None:
         """Give one posed frame to the optimiser (with the suit's own pelvis and feet, :meth:`_suit_own`); optimise
@@ -368,9 +422,9 @@ class BodyNode(GraphNode):
             return
         T_suit, suit_body = suit
         live = self._optimiser
-        dropped = live.add((fused.stamp_ns, fused.frame_id, pose, fused.T_map_P), fused.line_ns * 1e-9,
-                           fused.T_map_P, *leg_chains(self.body.skeleton, pose.local_rot), T_suit[:3, 3],
-                           suit_body.joints[self._feet])
+        t_s, suit_feet = fused.line_ns * 1e-9, suit_body.joints[self._feet]
+        dropped = live.add(_OptimisedFrame(fused.stamp_ns, fused.frame_id, pose, fused.T_map_P, t_s, suit_feet), t_s,
+                           fused.T_map_P, *leg_chains(self.body.skeleton, pose.local_rot), T_suit[:3, 3], suit_feet)
         self._count_skipped(len(dropped), self._drop_reason(live))
         self._solve(live)
 
@@ -411,15 +465,17 @@ class BodyNode(GraphNode):
             self._count_skipped(len(solved.dropped), self._drop_reason(live))
         live.start(flush)
 
-    def _publish_optimised(self, records: list[tuple[int, str, BodyPose, np.ndarray]], result: WindowResult) -> None:
-        """The optimised pelvis and legs of the frames of ``records`` (stamp, frame, body, fused pelvis pose): the
-        body turned about its pelvis with it, on those legs, at the size the window was solved at (the legs' length
-        from the walk)."""
+    def _publish_optimised(self, records: list[_OptimisedFrame], result: WindowResult) -> None:
+        """The optimised pelvis and legs of the frames of ``records``: the body turned about its pelvis with it, on
+        those legs, at the size the window was solved at (the legs' length from the walk), its standing feet held
+        (``foot_lock``)."""
         t, R, legs, leg_ratio = result.t, result.R, result.legs, result.leg_ratio
-        for k, (stamp_ns, frame_id, pose, T) in enumerate(records):
+        for k, (stamp_ns, frame_id, pose, T, t_s, suit_feet) in enumerate(records):
             T_opt = np.eye(4)
             T_opt[:3, :3], T_opt[:3, 3] = R[k], t[k]
             moved = resized_body(bent_legs(moved_body(pose, T, T_opt), self.body.skeleton, legs[k]), leg_ratio)
+            if self._optimised_lock is not None:
+                moved = self._optimised_lock.step(t_s, moved, suit_feet)
             self._opt_odometry.publish(odometry_to_msg(self.backend, stamp_ns, frame_id, PELVIS_FRAME, t[k],
                                                        matrix_to_quat(R[k])))
             for topic, raw in pose_cdr(OPTIMISED_TOPICS, self.body.skeleton, stamp_ns, frame_id, moved.local_rot,
@@ -595,10 +651,14 @@ class BodyNode(GraphNode):
     def frame_status(self) -> tuple[DiagnosticLevel, str, dict[str, Any]]:
         """Poses published, the body's scale, poses waiting, latencies."""
         level = DiagnosticLevel.OK if self.frames["pose"] else DiagnosticLevel.WARN
-        return level, "posing" if self.frames["pose"] else "no pose yet", {
+        message = "posing" if self.frames["pose"] else "no pose yet"
+        if self._odometry_tilt_deg > _MAX_ODOMETRY_TILT_DEG:
+            level, message = DiagnosticLevel.WARN, f"{message}; suit odometry: {self._odometry_axes_status()}"
+        return level, message, {
             "body scale": f"{self.body.skeleton.scale * self._fused_ratio:.3f}",
             "standing pelvis height off the walk's legs (m)": self._off_walk_status(),
             **self._lock_status(),
+            "suit odometry's orientation read in": self._odometry_axes_status(),
             "poses with held suit data": self._degraded,
             "pending": len(self._waiting), **{f"suit samples rejected: {k}": v for k, v in self._rejected.items()},
             "clock steps back (LiDAR, suit)": f"{len(self._lidar_clock.steps_ns)}, {len(self._suit_clock.steps_ns)}",
@@ -610,7 +670,10 @@ class BodyNode(GraphNode):
         if self._lock is None:
             return {"foot lock": "off"}
         standing = [side for side, held in zip(("left", "right"), self._lock.standing(), strict=True) if held]
-        return {"feet standing": ", ".join(standing) or "none", "foot anchors let go": self._lock.released}
+        out = {"feet standing": ", ".join(standing) or "none", "foot anchors let go": self._lock.released}
+        if self._optimised_lock is not None:
+            out["optimised: foot anchors let go"] = self._optimised_lock.released
+        return out
 
     def _optimisation_status(self) -> dict[str, Any]:
         """The optimisation's counts: frames optimised, waiting, not optimised by reason; the sole height; the
