@@ -6,7 +6,8 @@ repeated for every combination of the contact weight, the stance speed, the
 orientation weight, an offset on the sole height measured, the sliding
 weight and the legs' pose weight (``--contact``, ``--stance``, ``--orientation``,
 ``--sole-offset``, ``--sliding``, ``--pose``), and the refined trajectory and body are measured against the
-truth as ``hsc4d_eval`` does. Per setting also where the sliding comes from:
+truth as ``hsc4d_eval`` does, but with the refined body's standing feet not held afterwards (the optimisation's
+own bodies; ``RefinementConfig.foot_lock``). Per setting also where the sliding comes from:
 the motion of a truly standing foot from frame to frame where the suit finds
 it standing too (the sliding term holds it there) and where it does not (the
 stance's edges, where the foot rolls), each against the truth's own motion on
@@ -29,7 +30,7 @@ import numpy as np
 
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.hsc4d import evaluation as ev
-from lip_ros.hsc4d.refinement import CaptureRefiner
+from lip_ros.hsc4d.refinement import CaptureRefiner, RefinementConfig
 from lip_ros.hsc4d.scene_optimisation import SceneOptimisationConfig, stance_from_suit
 from lip_ros.hsc4d.suit_body import FEET
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
@@ -70,7 +71,7 @@ def main() -> None:
     results: dict[tuple, list[dict[str, float]]] = {s: [] for s in settings}
     for seed in args.seeds:
         capture = SiteCapture(SiteCaptureConfig(seed=seed, seconds=args.seconds))
-        refiner = CaptureRefiner()
+        refiner = CaptureRefiner(RefinementConfig(foot_lock=None))  # the optimisation's bodies, their feet not held
         for k, stamp_ns, points, point_ns in ev.capture_sweeps(capture, refiner):
             refiner.add_sweep(points, point_ns, stamp_ns)
             if k % 100 == 0:

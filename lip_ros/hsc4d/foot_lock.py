@@ -1,16 +1,16 @@
-"""The fused body's standing feet held where they stood: a causal foot lock (ROS-free).
+"""A body's standing feet held where they stood: a causal foot lock (ROS-free).
 
-The fused body (:mod:`lip_ros.hsc4d.suit_body`) hangs the suit's segments on the fused pelvis: a standing foot
-moves with every error of the pelvis's trajectory and of the suit's leg segments, about a centimetre a frame at
-10 Hz where a true standing foot joint moves about half that, nearly all of it as it lands. :class:`FootLock`
-takes, frame by frame and using nothing later, which foot stands from the suit's own feet (its segments on its
-own odometry: a foot it calls standing is still there) and holds that foot joint where the body put it when its
-stance began (the height: the mean over the stance so far): the hip and the knee are turned (two-bone IK; the
-ankle keeps its orientation in ``map``, so the foot below it does too) until the foot joint is on its anchor. The
-pelvis and the rest of the body are not touched. A hold that would move the foot joint more than ``release_m``
-(the pelvis's trajectory corrected under it, a stance the suit calls too long, a leg that cannot reach) lets the
-anchor go: the foot joint is the body's own there, and held from there. Docs: docs/hsc4d/graph.md ("The
-standing feet").
+The fused body (:mod:`lip_ros.hsc4d.suit_body`) hangs the suit's segments on the fused pelvis: a standing foot moves
+with every error of the pelvis's trajectory and of the suit's leg segments, about a centimetre a frame at 10 Hz where a
+true standing foot joint moves about half that, nearly all of it as it lands. :class:`FootLock` takes, frame by frame
+and using nothing later, which foot stands from the suit's own feet (its segments on its own odometry: a foot it calls
+standing is still there) and holds that foot joint where the body put it when its stance began (the height: the mean
+over the stance so far): the hip and the knee are turned (two-bone IK; the ankle keeps its orientation in ``map``, so
+the foot below it does too) until the foot joint is on its anchor. The pelvis and the rest of the body are not touched.
+The body node holds the fused body's feet and the optimised body's (one lock each), the refinement the refined body's
+(``RefinementConfig.foot_lock``). A hold that would move the foot joint more than ``release_m`` (the pelvis's trajectory
+corrected under it, a stance the suit calls too long, a leg that cannot reach) lets the anchor go: the foot joint is the
+body's own there, and held from there. Docs: docs/hsc4d/graph.md ("The standing feet").
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ class FootLockConfig:
             raise ValueError(f"invalid {self}")
 
 
-#: The foot lock the body node runs (``foot_lock`` true).
+#: The foot lock the body node and the refinement run (``foot_lock`` true).
 FOOT_LOCK = FootLockConfig()
 
 

@@ -104,10 +104,10 @@ class LiveRecord:
 
 @dataclass(frozen=True)
 class Refinement:
-    """The refined capture at the live sweeps' times (N,): the whole graph's pelvis T_map_P (N, 4, 4), that after
-    the scene-aware optimisation, the body on it, the whole-site map rebuilt from the refined trajectory (S_opt)
-    (M, 3) in ``map``, the sole height used (m), the time per optimisation window and
-    for the whole refinement (s), and the legs' length from the whole walk over the live body's (the refined
+    """The refined capture at the live sweeps' times (N,): the whole graph's pelvis T_map_P (N, 4, 4), that after the
+    scene-aware optimisation, the body on it (its standing feet held with ``foot_lock``), the whole-site map rebuilt
+    from the refined trajectory (S_opt) (M, 3) in ``map``, the sole height used (m), the time per optimisation window
+    and for the whole refinement (s), and the legs' length from the whole walk over the live body's (the refined
     body's size over the live one's)."""
 
     stamps_ns: np.ndarray

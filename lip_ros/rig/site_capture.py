@@ -42,9 +42,9 @@ __all__ = ["ODOMETRY_AXES", "SiteCaptureConfig", "SiteTruth", "SiteCapture", "TR
 #: Rate of the ground truth trajectories (Hz).
 TRUTH_RATE_HZ = 100.0
 
-#: The axes of the suit odometry's orientation in the model axes (x left, y up, z forward), by name: the pelvis
-#: segment's own, or a ROS base_link's (x forward, y left, z up).
-ODOMETRY_AXES = {"model": np.eye(3), "base_link": R_L_M_FACING_X.T}
+#: The axes the suit odometry's orientation may be given in: the pelvis segment's own, in the model axes (x left,
+#: y up, z forward), or a ROS base_link's (x forward, y left, z up).
+ODOMETRY_AXES = ("model", "base_link")
 
 
 @dataclass(frozen=True)
@@ -186,8 +186,8 @@ class SiteCapture:
                                      self.suit.clock_offset_s, np.random.default_rng([self.config.seed, 303]),
                                      replace(self.config.odometry, rate_hz=self.config.suit_rate_hz))
         odo.stamp_ns = odo.stamp_ns + self.epoch_ns
-        if self.config.odometry_axes != "model":
-            axes = ODOMETRY_AXES[self.config.odometry_axes]  # the odometry's axes in the pelvis segment's
+        if self.config.odometry_axes == "base_link":
+            axes = R_L_M_FACING_X.T  # base_link's x, y, z in the model axes: forward, left, up
             odo.quat = matrix_to_quat(quat_to_matrix(odo.quat) @ axes)
             odo.velocity = odo.velocity @ axes  # in the pelvis's own frame, in those axes
         return odo

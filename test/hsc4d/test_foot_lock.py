@@ -1,4 +1,4 @@
-"""The foot lock of the fused body: a leg reaching for a point, standing feet held, anchors let go."""
+"""The foot lock of the HSC4D bodies: a leg reaching for a point, standing feet held, anchors let go."""
 
 from __future__ import annotations
 

@@ -108,13 +108,13 @@ def test_the_map_frame_stands_on_the_ground_under_the_first_pelvis_position():
 
 
 def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than_the_suit():
-    """A 24 s capture at 512 columns played in arrival order: the pipeline holds the sweeps until the jump, finds
-    the suit's clock within 10 ms, and its live and refined pelvis trajectories stay within 10 cm of the truth
-    (ATE after the yaw + translation fit on the 5 s after the landing), while the suit alone and kiss-icp alone
-    (the baselines) are more than twice as far off. The body on them, live (its standing feet held) and optimised
-    with the scene: checkpoints within 10 cm, foot contact within 5 cm, MPJPE under 20 mm, sliding no worse than
-    the suit's own (the issue's targets are 10 cm, 3 cm, 20 mm and 1 cm a frame
-    over held-out 90 s walks, measured by hsc4d_eval; this short one at 512 columns is looser). The site map
+    """A 24 s capture at 512 columns played in arrival order: the pipeline holds the sweeps until the jump, finds the
+    suit's clock within 10 ms, and its live and refined pelvis trajectories stay within 10 cm of the truth (ATE after
+    the yaw + translation fit on the 5 s after the landing), while the suit alone and kiss-icp alone (the baselines) are
+    more than twice as far off. The body on them, live and optimised with the scene (the standing feet of each held):
+    checkpoints within 10 cm, foot contact within 5 cm, MPJPE under 20 mm, sliding no worse than the suit's own (the
+    issue's targets are 10 cm, 3 cm, 20 mm and 1 cm a frame over held-out 90 s walks, measured by hsc4d_eval; this short
+    one at 512 columns is looser). The site map
     rebuilt from the refined trajectory (S_opt) is, drift forgiven, no farther from the true surface than the live
     one (median / p90 1.44 / 4.21 against 1.51 / 4.37 cm; 1.56 / 4.30 when each sweep moved by the refined pelvis
     less the live fused one, before session 35). The body's size from the standing pelvis's height is 1.3 % off
@@ -132,7 +132,7 @@ def test_the_live_trajectory_and_its_refinement_track_the_pelvis_far_better_than
     assert np.isfinite([v for m in metrics.values() for v in m.values() if not np.isnan(v)]).all()
     body = body_metrics(run, capture.terrain)
     assert set(body) == set(METHODS + ABLATIONS) | {"truth"}
-    for name in ("live", "live_optimised", "refined"):  # the live graph's: the fused body, its standing feet held
+    for name in ("live", "live_optimised", "refined"):  # their standing feet held
         assert body[name]["checkpoint_m"] < 0.1 and body[name]["contact_m"] < 0.05 and body[name]["mpjpe_mm"] < 20
         assert body[name]["sliding_m"] <= body["baseline1_suit"]["sliding_m"]
     for baseline in ("baseline1_suit", "baseline2_lidar"):

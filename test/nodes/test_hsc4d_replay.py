@@ -114,7 +114,7 @@ def test_outputs_follow_the_contract(replay):
     assert np.allclose(bone_scales, scale, atol=1e-3) and 0.8 < scale < 1.25, (bone_scales, scale)
 
 
-def test_the_fused_body_holds_its_standing_feet(replay):
+def test_the_fused_and_optimised_bodies_hold_their_standing_feet(replay):
     """The body node's foot locks (lip_ros.hsc4d.foot_lock) over DDS: a standing foot joint of the fused body and of
     the optimised one keeps its horizontal position from frame to frame (to the message's float64) for much of the
     walk, which a body hanging on the fused pelvis never does; its bones keep their lengths
@@ -129,7 +129,7 @@ def test_the_fused_body_holds_its_standing_feet(replay):
 
 
 def _held_while_walking(out: Path, topic: str = HSC4D_TOPICS.joint_poses) -> float:
-    """Of the frame pairs of ``topic`` (joint poses) where the pelvis walks (0.5 m/s or more; more than 40 of them),
+    """Of the frame pairs of ``topic`` (joint poses) where the pelvis walks (faster than 0.5 m/s; more than 40),
     the share where a foot joint keeps its horizontal position (to the message's float64)."""
     skeleton = load_skeleton()
     feet = [skeleton.index(f) for f in FEET]
@@ -182,9 +182,10 @@ def test_the_body_node_optimises_every_frame_with_the_scene(replay):
 
 
 def test_the_offline_refinement_is_recorded_beside_the_outputs(replay):
-    """``--refine``: every sweep refined, the body on each, the site's map once, latched, in ``map``; as accurate
-    as the live trajectory on this short capture; its time against the capture's said (how fast it is on an
-    idle machine: ``make demo-hsc4d``, docs/hsc4d/optimisation.md; here it shares the machine with other tests)."""
+    """``--refine``: every sweep refined, the body on each (its standing feet held), the site's map once, latched,
+    in ``map``; as accurate as the live trajectory on this short capture; its time against the capture's said (how
+    fast it is on an idle machine: ``make demo-hsc4d``, docs/hsc4d/optimisation.md; here it shares the machine with
+    other tests)."""
     bag, out, stdout = replay
     frames_in = bag_topics(bag)[HIP_LIDAR_TOPIC].count
     refined = out.with_name(out.name + "_refined")
@@ -199,6 +200,7 @@ def test_the_offline_refinement_is_recorded_beside_the_outputs(replay):
     assert {o.stamp_ns for o in odometry} == fused and {o.frame_id for o in odometry} == {MAP_FRAME}
     poses = [msg_to_pose_array(m.msg) for m in read_messages(refined, [REFINED_TOPICS.joint_poses])]
     assert np.allclose([p.positions[0] for p in poses], [o.position for o in odometry], atol=1e-6)
+    assert _held_while_walking(refined, REFINED_TOPICS.joint_poses) > 0.3  # its standing feet held too
     site = cloud_to_xyz(next(read_messages(refined, [REFINED_MAP_TOPIC])).msg)
     assert len(site) > 10_000 and np.isfinite(site).all()
     live_ate = _number(r"landing\): pelvis ATE ([\d.]+) cm", stdout)

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from lip_ros.core.rotations import quat_to_matrix
 from lip_ros.core.skeleton import load_skeleton
 from lip_ros.rig.site_capture import SiteCapture, SiteCaptureConfig
 from lip_ros.tools.site_variants import add_site_arguments, site_capture_config
@@ -25,11 +27,12 @@ def test_no_options_are_the_rigs_own_capture_and_each_option_sets_its_variant():
     assert site_capture_config(_parse([]), 3) == SiteCaptureConfig(seed=3)
     args = _parse(["--seconds", "20", "--columns", "512", "--rate", "20", "--beams", "32", "--mount-tilt-up", "15",
                    "--mount-spin", "180", "--mount-lever", "0.15", "0", "-0.1", "--suit-rate", "240",
-                   "--suit-noise-scale", "4", "--body-scale", "1.2", "--scene", "open", "--sway", "0.5"])
+                   "--suit-noise-scale", "4", "--body-scale", "1.2", "--scene", "open", "--sway", "0.5",
+                   "--odometry-axes", "base_link"])
     assert site_capture_config(args, 1000) == SiteCaptureConfig(
         seed=1000, seconds=20.0, columns=512, rate_hz=20.0, beams=32, mount_tilt_up_deg=15.0, mount_spin_deg=180.0,
         mount_lever_m=(0.15, 0.0, -0.1), suit_rate_hz=240.0, suit_noise_scale=4.0, body_scale=1.2,
-        scene="open", sway_deg=0.5)
+        scene="open", sway_deg=0.5, odometry_axes="base_link")
 
 
 def test_the_beams_and_size_variants_are_the_hip_lidars_and_the_wearers():
@@ -46,6 +49,22 @@ def test_the_beams_and_size_variants_are_the_hip_lidars_and_the_wearers():
     assert not np.allclose(own.motion.skeleton.offsets, 1.2 * contract)  # the seed's own: 0.9-1.1
     assert SiteCapture(SiteCaptureConfig(seed=0, seconds=14.0, scene="sparse")).terrain.layout["scene"] == "sparse"
     for bad in ({"beams": 48}, {"body_scale": 1.6}, {"body_scale": 0.4}, {"scene": "forest"}, {"sway_deg": 3.5},
-                {"sway_deg": -0.1}):
+                {"sway_deg": -0.1}, {"odometry_axes": "enu"}):
         with pytest.raises(ValueError):
             SiteCaptureConfig(**bad)
+
+
+def test_the_odometry_axes_variant_turns_only_the_suit_odometrys_orientation():
+    """``odometry_axes="base_link"``: the suit's /mocap/odometry gives the pelvis's orientation in a ROS base_link's
+    axes (x forward, y left, z up: the model axes' z, x, y) and its velocity in them; its stamps and positions are
+    the rig's own."""
+    config = SiteCaptureConfig(seed=0, seconds=14.0, columns=512)
+    own = SiteCapture(config).suit_odometry()
+    turned = SiteCapture(replace(config, odometry_axes="base_link")).suit_odometry()
+    np.testing.assert_array_equal(turned.stamp_ns, own.stamp_ns)
+    np.testing.assert_array_equal(turned.position, own.position)
+    R_own, R_turned = quat_to_matrix(own.quat), quat_to_matrix(turned.quat)
+    np.testing.assert_allclose(R_turned[:, :, 0], R_own[:, :, 2], atol=1e-9)  # base_link's x: the pelvis's forward
+    np.testing.assert_allclose(R_turned[:, :, 1], R_own[:, :, 0], atol=1e-9)  # y: its left
+    np.testing.assert_allclose(R_turned[:, :, 2], R_own[:, :, 1], atol=1e-9)  # z: its up
+    np.testing.assert_allclose(turned.velocity, own.velocity[:, [2, 0, 1]], atol=1e-9)

@@ -252,7 +252,10 @@ class BodyNode(GraphNode):
         self._out = self._pose_publishers(HSC4D_TOPICS)
         self._optimiser = None
         self._lock = FootLock(self.body.skeleton) if p["foot_lock"] else None
-        self._optimised_lock = FootLock(self.body.skeleton) if p["foot_lock"] and p["optimise_window"] else None
+        # the optimised body's foot lock of each optimiser (the one now and those of the last captures closing), by
+        # id; the anchors let go by those of captures closed
+        self._optimised_locks: dict[int, FootLock] = {}
+        self._optimised_released = 0
         self._feet = [self.body.skeleton.index(f) for f in FEET]
         # the suit's own pelvis poses (which foot stands), for the foot lock and the optimisation
         self._suit_stamps: deque[int] = deque(maxlen=self.body.config.capacity)
@@ -268,6 +271,7 @@ class BodyNode(GraphNode):
             self._optimiser = BackgroundOptimiser(SceneOptimiser(replace(
                 SceneOptimisationConfig(), window=p["optimise_window"], legs_from_walk=self._scale_from_height)))
             self._closing: list[BackgroundOptimiser] = []  # the last captures': their last windows being solved
+            self._lock_optimised(self._optimiser)
             self._last_pose_at = time.monotonic()
             self._optimised = 0
             self._not_optimised: Counter[str] = Counter()
@@ -346,15 +350,20 @@ class BodyNode(GraphNode):
         while self._waiting:
             self._pose(self._waiting.popleft())
         if self._optimiser is not None:
-            self._closing.append(self._optimiser)
+            self._closing.append(self._optimiser)  # its feet held on by its own lock
             self._optimiser = BackgroundOptimiser(SceneOptimiser(self._optimiser.config))
+            self._lock_optimised(self._optimiser)
         self._scale_from_height = self.params["body_scale"] == 0
-        for lock in (self._lock, self._optimised_lock):
-            if lock is not None:
-                lock.reset()
+        if self._lock is not None:
+            self._lock.reset()
         self._odometry_tilt_deg, self._odometry_axes = float("nan"), None
         self._new_capture = None
         return self._lidar_clock.realign("fused odometry", stamp_ns, self._suit_clock.shift_ns)
+
+    def _lock_optimised(self, live: BackgroundOptimiser) -> None:
+        """Give ``live``'s optimised body a foot lock of its own (with ``foot_lock``)."""
+        if self.params["foot_lock"]:
+            self._optimised_locks[id(live)] = FootLock(self.body.skeleton)
 
     def _suit_pose(self, suit_ns: int) -> np.ndarray | None:
         """The suit's own pelvis pose (4, 4) at ``suit_ns``: between the samples around it (as the trajectory's
@@ -406,7 +415,8 @@ class BodyNode(GraphNode):
         """How the suit odometry's orientation is read: in the pelvis segment's axes or in its own turned."""
         tilt = self._odometry_tilt_deg
         if not np.isfinite(tilt):
-            return "not checked yet"
+            checked = self._lock is not None or self._optimiser is not None  # else its pose is never needed
+            return "not checked yet" if checked else "not checked (no foot lock, no optimisation)"
         if tilt <= _MAX_ODOMETRY_TILT_DEG:
             return "the pelvis segment's"
         said = f"its pelvis up {tilt:.0f} deg from the pelvis IMU's"
@@ -461,21 +471,21 @@ class BodyNode(GraphNode):
                 self._count_skipped(len(solved.records), f"failed ({type(solved.error).__name__})")
             else:
                 self._window_latency.add(solved.seconds)
-                self._publish_optimised(solved.records, solved.result)
+                self._publish_optimised(solved.records, solved.result, self._optimised_locks.get(id(live)))
             self._count_skipped(len(solved.dropped), self._drop_reason(live))
         live.start(flush)
 
-    def _publish_optimised(self, records: list[_OptimisedFrame], result: WindowResult) -> None:
+    def _publish_optimised(self, records: list[_OptimisedFrame], result: WindowResult, lock: FootLock | None) -> None:
         """The optimised pelvis and legs of the frames of ``records``: the body turned about its pelvis with it, on
         those legs, at the size the window was solved at (the legs' length from the walk), its standing feet held
-        (``foot_lock``)."""
+        by ``lock`` (its optimiser's; None: not held)."""
         t, R, legs, leg_ratio = result.t, result.R, result.legs, result.leg_ratio
         for k, (stamp_ns, frame_id, pose, T, t_s, suit_feet) in enumerate(records):
             T_opt = np.eye(4)
             T_opt[:3, :3], T_opt[:3, 3] = R[k], t[k]
             moved = resized_body(bent_legs(moved_body(pose, T, T_opt), self.body.skeleton, legs[k]), leg_ratio)
-            if self._optimised_lock is not None:
-                moved = self._optimised_lock.step(t_s, moved, suit_feet)
+            if lock is not None:
+                moved = lock.step(t_s, moved, suit_feet)
             self._opt_odometry.publish(odometry_to_msg(self.backend, stamp_ns, frame_id, PELVIS_FRAME, t[k],
                                                        matrix_to_quat(R[k])))
             for topic, raw in pose_cdr(OPTIMISED_TOPICS, self.body.skeleton, stamp_ns, frame_id, moved.local_rot,
@@ -557,6 +567,8 @@ class BodyNode(GraphNode):
                     if len(last):  # no map, or no ground under its first window's feet
                         self._skip(last, f"a new capture began, {self._waiting_reason(last)}")
                     self._closing.remove(last)
+                    closed = self._optimised_locks.pop(id(last), None)
+                    self._optimised_released += 0 if closed is None else closed.released
         while self._waiting:
             fused = self._waiting[0]
             if self._offset_ns is not None:
@@ -671,8 +683,9 @@ class BodyNode(GraphNode):
             return {"foot lock": "off"}
         standing = [side for side, held in zip(("left", "right"), self._lock.standing(), strict=True) if held]
         out = {"feet standing": ", ".join(standing) or "none", "foot anchors let go": self._lock.released}
-        if self._optimised_lock is not None:
-            out["optimised: foot anchors let go"] = self._optimised_lock.released
+        if self._optimised_locks:
+            out["optimised: foot anchors let go"] = (self._optimised_released
+                                                     + sum(lock.released for lock in self._optimised_locks.values()))
         return out
 
     def _optimisation_status(self) -> dict[str, Any]:
