@@ -8,6 +8,7 @@ from __future__ import annotations
 import re
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -248,15 +249,7 @@ def test_a_lidar_on_the_other_hip_is_put_there_and_said(tmp_path):
     "Rig variants: the other hip"). Over DDS every sweep is posed within the 10 cm target, the node says what it
     found in its log and as a WARN on /diagnostics naming ``mount_lever_m``, and lip_process_bag's summary gives it
     (without the check the live start stood 0.3 m aside until the walk's first corner)."""
-    bag, out = tmp_path / "capture", tmp_path / "outputs"
-    write_site_bag(SiteCapture(SiteCaptureConfig(seed=3, seconds=SECONDS, columns=512,
-                                                 mount_lever_m=(0.15, 0.0, -0.1))), bag, progress=False)
-    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out), *HSC4D_PLAYBACK],
-                          capture_output=True, text=True, timeout=240)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    frames_in = bag_topics(bag)[HIP_LIDAR_TOPIC].count
-    assert f"frames in: {frames_in}; pose {frames_in}\n" in proc.stdout, proc.stdout
-    assert _number(r"pelvis ATE ([\d.]+) cm", proc.stdout) < 10.0
+    out, proc = _variant_run(tmp_path, mount_lever_m=(0.15, 0.0, -0.1))
     said = "the wearer's body at the start puts the LiDAR on the left hip"
     assert f"hip: {said}" in proc.stdout, proc.stdout
     assert f"[hsc4d_trajectory_node]: mounting: {said}" in proc.stdout + proc.stderr
@@ -270,15 +263,7 @@ def test_a_suit_odometry_in_base_link_axes_is_read_in_the_pelvis_segments(tmp_pa
     and say so; every sweep is posed within the 10 cm target and the body node's suit feet stand where the suit's
     do, so the foot lock holds the standing feet as on the rig's own odometry (read as it came, the suit's feet
     turned about its pelvis by 90 deg: none held)."""
-    bag, out = tmp_path / "capture", tmp_path / "outputs"
-    write_site_bag(SiteCapture(SiteCaptureConfig(seed=3, seconds=SECONDS, columns=512, odometry_axes="base_link")),
-                   bag, progress=False)
-    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out), *HSC4D_PLAYBACK],
-                          capture_output=True, text=True, timeout=240)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    frames_in = bag_topics(bag)[HIP_LIDAR_TOPIC].count
-    assert f"frames in: {frames_in}; pose {frames_in}\n" in proc.stdout, proc.stdout
-    assert _number(r"pelvis ATE ([\d.]+) cm", proc.stdout) < 10.0
+    out, proc = _variant_run(tmp_path, odometry_axes="base_link")
     assert _held_while_walking(out) > 0.3
     last = _last_statuses(out)
     turn = "its axes taken for the segment's x, y, z: +y, +z, +x"
@@ -286,3 +271,18 @@ def test_a_suit_odometry_in_base_link_axes_is_read_in_the_pelvis_segments(tmp_pa
     body = last["hsc4d_body_node: frames"]
     assert body.level == 1 and turn in body.message and turn in body.values["suit odometry's orientation read in"]
     assert "[hsc4d_body_node]: suit odometry: " in proc.stdout + proc.stderr
+
+
+def _variant_run(tmp_path: Path, **variant: Any) -> tuple[Path, subprocess.CompletedProcess]:
+    """A 14 s rig variant capture of seed 3 at 512 columns (``variant``: SiteCaptureConfig's fields) through
+    ``lip_process_bag``: every sweep posed, within the 10 cm target; the outputs and the process."""
+    bag, out = tmp_path / "capture", tmp_path / "outputs"
+    write_site_bag(SiteCapture(SiteCaptureConfig(seed=3, seconds=SECONDS, columns=512, **variant)), bag,
+                   progress=False)
+    proc = subprocess.run([console_script("lip_process_bag"), str(bag), str(out), *HSC4D_PLAYBACK],
+                          capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    frames_in = bag_topics(bag)[HIP_LIDAR_TOPIC].count
+    assert f"frames in: {frames_in}; pose {frames_in}\n" in proc.stdout, proc.stdout
+    assert _number(r"pelvis ATE ([\d.]+) cm", proc.stdout) < 10.0
+    return out, proc
