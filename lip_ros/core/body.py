@@ -20,9 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lip_ros.core.capsule_rays import first_hits
 from lip_ros.core.skeleton import Skeleton
 
-__all__ = ["BodyModel", "TORSO_PARTS", "LIMB_PARTS", "first_hits", "capsule_distances"]
+__all__ = ["BodyModel", "TORSO_PARTS", "LIMB_PARTS", "capsule_distances"]
 
 # The capsule table below is drawn for the contract skeleton (scale 1); it scales with ``skeleton.scale``.
 
@@ -79,62 +80,6 @@ def capsule_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.nd
     p = points[:, None, :]
     q = _closest_on_segment(p, a[None], b[None])
     return np.linalg.norm(p - q, axis=-1) - r
-
-
-def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rowwise dot products of (..., 3) arrays: ``np.sum(u * v, axis=-1)`` bit for bit (the same order of the
-    additions; einsum's differs in the last bit), in less time."""
-    return u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1] + u[..., 2] * v[..., 2]
-
-
-def _sphere_hit(origin: np.ndarray, dirs: np.ndarray, centre: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """Entry distance of unit rays into spheres (rowwise), inf if missed or behind."""
-    oc = origin - centre
-    b = _dot(dirs, oc)
-    h = b * b - (_dot(oc, oc) - radius * radius)
-    with np.errstate(invalid="ignore"):
-        t = -b - np.sqrt(h)
-    return np.where((h >= 0.0) & (t > 0.0), t, np.inf)
-
-
-def _capsule_hit(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Entry distance of unit rays (origin (3,), dirs (M, 3)) into capsules (rowwise (M, 3), (M,)), inf if none.
-
-    The first hit of a capsule is the nearest of its open cylinder and its two end spheres.
-    """
-    ba = b - a
-    oa = origin - a
-    baba = _dot(ba, ba)
-    bard = _dot(ba, dirs)
-    baoa = _dot(ba, oa)
-    qa = baba - bard * bard
-    qb = baba * _dot(dirs, oa) - baoa * bard
-    qc = baba * _dot(oa, oa) - baoa * baoa - r * r * baba
-    h = qb * qb - qa * qc
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t = (-qb - np.sqrt(h)) / qa
-        y = baoa + t * bard
-        side = (h >= 0.0) & (qa > 1e-12 * baba) & (t > 0.0) & (y > 0.0) & (y < baba)
-    t_side = np.where(side, t, np.inf)
-    return np.minimum(t_side, np.minimum(_sphere_hit(origin, dirs, a, r), _sphere_hit(origin, dirs, b, r)))
-
-
-def first_hits(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Where unit rays from ``origin`` (3,) along ``dirs`` (N, 3) first meet capsules (ends a, b (K, 3), radii
-    r (K,)): the range (N,) (inf where none) and the capsule met (N,) (-1 where none). Only (ray, capsule) pairs
-    whose capsule's bounding sphere the ray passes are tested."""
-    centre = 0.5 * (a + b) - origin
-    reach = 0.5 * np.linalg.norm(b - a, axis=1) + r
-    along = dirs @ centre.T  # (N, K)
-    ray, cap = np.nonzero((np.sum(centre * centre, axis=1) - along * along <= reach * reach) & (along > -reach))
-    t = _capsule_hit(origin, dirs[ray], a[cap], b[cap], r[cap])
-    best = np.full(len(dirs), np.inf)
-    np.minimum.at(best, ray, t)
-    met = np.full(len(dirs), -1)
-    win = np.isfinite(t) & (t == best[ray])
-    met[ray[win]] = cap[win]
-    return best, met
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from lip_ros.core.kinematics_kernel import chain
 from lip_ros.core.rotations import axis_angle_to_matrix, euler_zyx_to_matrix, matrix_to_euler_zyx
 from lip_ros.resources import params_path
 
@@ -157,16 +158,11 @@ def forward_kinematics(
     local_rot = np.asarray(local_rot, dtype=np.float64)
     lead = local_rot.shape[:-3]
     off = skeleton.offsets if offsets is None else np.asarray(offsets, dtype=np.float64)
-    off = np.broadcast_to(off, lead + (NUM_JOINTS, 3))
-    glob = np.empty_like(local_rot)
-    pos = np.empty(lead + (NUM_JOINTS, 3))
-    glob[..., 0, :, :] = local_rot[..., 0, :, :]
-    pos[..., 0, :] = 0.0 if root_pos is None else root_pos
-    for j in range(1, NUM_JOINTS):
-        p = skeleton.parents[j]
-        glob[..., j, :, :] = glob[..., p, :, :] @ local_rot[..., j, :, :]
-        pos[..., j, :] = pos[..., p, :] + np.einsum("...ab,...b->...a", glob[..., p, :, :], off[..., j, :])
-    return glob, pos
+    root = np.zeros(3) if root_pos is None else np.asarray(root_pos, dtype=np.float64)
+    glob, pos = chain(np.ascontiguousarray(local_rot.reshape((-1, NUM_JOINTS, 3, 3))),
+                      np.ascontiguousarray(np.broadcast_to(off, lead + (NUM_JOINTS, 3)).reshape((-1, NUM_JOINTS, 3))),
+                      np.ascontiguousarray(np.broadcast_to(root, lead + (3,)).reshape((-1, 3))), skeleton.parents)
+    return glob.reshape(lead + (NUM_JOINTS, 3, 3)), pos.reshape(lead + (NUM_JOINTS, 3))
 
 
 def calibration_pose(skeleton: Skeleton, pose: str) -> tuple[np.ndarray, np.ndarray]:

@@ -35,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lip_ros.core.body import TORSO_PARTS, BodyModel, capsule_distances, first_hits
+from lip_ros.core.body import TORSO_PARTS, BodyModel, capsule_distances
+from lip_ros.core.capsule_rays import first_hits
 from lip_ros.core.frames import UP_M, hip_lidar_rotation
 from lip_ros.core.ground_plane import fit_ground_plane
 from lip_ros.core.rotations import axis_angle_to_matrix, matrix_to_axis_angle

@@ -25,8 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lip_ros.core.body import LIMB_PARTS, TORSO_PARTS, BodyModel, first_hits
+from lip_ros.core.body import LIMB_PARTS, TORSO_PARTS, BodyModel
 from lip_ros.core.skeleton import NUM_JOINTS, PROPORTION_GROUPS, forward_kinematics, load_skeleton
+from lip_ros.lip.surface_kernel import normal_equations
 
 __all__ = ["SurfaceFitConfig", "SURFACE_FIT", "SurfaceFit", "SurfaceFitter"]
 
@@ -92,7 +93,16 @@ class SurfaceFitter:
             self._gain[i, [self._skeleton.index(j) for g in group.split("+") for j in PROPORTION_GROUPS[g]]] = 1.0
         sd = np.array([self.config.girth_prior] * _GIRTHS + [self.config.proportion_prior] * len(groups))
         self._prior = np.diag(1.0 / sd**2)
+        self._compile()
         self.reset()
+
+    def _compile(self) -> None:
+        """Compile the fit's kernel (or load it from numba's cache) now rather than on the first frame: a fit of
+        a few points in front of a body at rest."""
+        self.reset()
+        front = np.array([5.0, 0.0, 0.0])
+        self.fit(front + 0.01 * np.arange(3 * self.config.min_points).reshape(-1, 3),
+                 np.broadcast_to(np.eye(3), (NUM_JOINTS, 3, 3)), 1.0, front)
 
     def reset(self) -> None:
         """Forget the performer's shape (and the last correction)."""
@@ -149,41 +159,15 @@ class SurfaceFitter:
         r0 = scale * self._body.radius
         t = t0 + _clip_norm(self._correction, c.max_shift_m)  # warm start: the last frame's correction
         shape = prior_shape.copy()
-        n_shape = len(shape)
         prior_t = 1.0 / c.translation_prior_m**2
-        rows = np.arange(len(points))
         ranges = np.linalg.norm(points, axis=1)
         ray = points / np.maximum(ranges, 1e-9)[:, None]  # the sensor is at the origin of the points' frame
         for _ in range(c.iterations):
             change = shape[_GIRTHS:] - prior_shape[_GIRTHS:]
             a = a0 + np.einsum("g,gkj->kj", change, da)
             ab = b0 + np.einsum("g,gkj->kj", change, db) - a
-            radius = r0 * shape[self._group]
-            # where each ray meets the body (root-relative); rays that miss it: the point itself
-            hit_range, met = first_hits(-t, ray, a, a + ab, radius)
-            hit = met >= 0
-            miss = ~hit
-            p = np.where(hit[:, None], ray * np.where(hit, hit_range, 0.0)[:, None], points) - t
-            k = met.copy()  # the capsule met, or (a miss) the nearest
-            k[miss] = np.argmin(_axis_distances(p[miss], a, ab) - radius, axis=1)
-            s, diff = _nearest_on_axes(p, a[k], ab[k])
-            dist = np.sqrt(np.einsum("nj,nj->n", diff, diff))
-            normal = diff / np.maximum(dist, 1e-9)[:, None]
-            # hit: the range error, times the cosine of the incidence (along the normal, as the Jacobian below);
-            # miss: the point's distance to the body (positive: outside)
-            res = np.where(hit, np.maximum(-np.einsum("nj,nj->n", normal, ray), _MIN_COS) * (hit_range - ranges),
-                           dist - radius[k])
-            weight = np.minimum(1.0, c.huber_m / np.maximum(np.abs(res), 1e-12)) / c.point_noise_m**2
-            weight[miss] *= c.miss_weight
-            jac = np.empty((len(p), 3 + n_shape))
-            jac[:, :3] = -normal  # moving the body by dt moves the point by -dt relative to it
-            jac[:, 3:3 + _GIRTHS] = 0.0
-            jac[rows, 3 + self._group[k]] = -r0[k]
-            # a longer bone group moves the axis point nearest the point by dq; the distance changes by -n.dq
-            dq = da[:, k] + s[None, :, None] * (db[:, k] - da[:, k])  # (G, N, 3)
-            jac[:, 3 + _GIRTHS:] = -np.einsum("gnj,nj->ng", dq, normal)
-            H = jac.T @ (weight[:, None] * jac)
-            rhs = -jac.T @ (weight * res)
+            H, rhs, res = normal_equations(points, ray, ranges, t, a, ab, r0 * shape[self._group], r0, self._group,
+                                           da, db, c.huber_m, c.point_noise_m, c.miss_weight, _MIN_COS, _GIRTHS)
             H_data = H.copy()
             H[:3, :3] += prior_t * np.eye(3)
             rhs[:3] -= prior_t * (t - t0)
@@ -198,20 +182,6 @@ class SurfaceFitter:
         self._info = info + H_ss  # the frame's solution is the new estimate (an information filter's update)
         self._shape = shape
         return SurfaceFit(t, self.shape, float(np.median(np.abs(res))), True)
-
-
-def _nearest_on_axes(p: np.ndarray, a: np.ndarray, ab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Where on each segment ``a`` to ``a + ab`` the point ``p`` is nearest (fraction s, all (..., 3) broadcast)
-    and the point's offset from there."""
-    s = np.clip(np.einsum("...j,...j->...", p - a, ab) / np.maximum(np.einsum("...j,...j->...", ab, ab), 1e-18),
-                0.0, 1.0)
-    return s, p - (a + s[..., None] * ab)
-
-
-def _axis_distances(p: np.ndarray, a: np.ndarray, ab: np.ndarray) -> np.ndarray:
-    """(N, K) distance of each point (N, 3) to each capsule's axis (K segments ``a`` to ``a + ab``)."""
-    _, diff = _nearest_on_axes(p[:, None, :], a[None], ab[None])
-    return np.sqrt(np.einsum("nkj,nkj->nk", diff, diff))
 
 
 def _clip_norm(v: np.ndarray, limit: float) -> np.ndarray:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lip_ros.core.body import BodyModel
+from lip_ros.core.capsule_rays import first_hits
 from lip_ros.core.skeleton import forward_kinematics, load_skeleton
 
 
@@ -147,3 +148,16 @@ def test_raycast_head_on(skeleton):
     assert t[0] == pytest.approx(5.0 - r[k])
     assert cos[0] == pytest.approx(1.0)
     assert refl[0] == body.reflectivity[k]
+
+
+def test_first_hits_meets_the_nearest_capsule_and_of_equal_ones_the_last():
+    a = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 0.0], [3.0, -1.0, 0.0]])
+    b = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [3.0, 1.0, 0.0]])  # 0 and 1 share an end sphere; 2 behind them
+    r = np.array([0.2, 0.2, 0.5])
+    dirs = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
+    origins = [np.array([-5.0, 0.0, 0.0]), np.array([-5.0, -0.5, 0.0]), np.array([-5.0, 0.0, 0.0]),
+               np.array([-5.0, 0.0, 0.0])]
+    got = [first_hits(o, d[None], a, b, r) for o, d in zip(origins, dirs, strict=True)]
+    assert got[0][0][0] == pytest.approx(4.8) and got[0][1][0] == 1  # the shared sphere: the later capsule
+    assert got[1][0][0] == pytest.approx(4.8) and got[1][1][0] == 0  # capsule 0's side, not 2's behind it
+    assert [g[0][0] for g in got[2:]] == [np.inf, np.inf] and [g[1][0] for g in got[2:]] == [-1, -1]  # past, behind

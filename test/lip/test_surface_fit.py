@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from lip_ros.core.body import BodyModel
+from lip_ros.core.capsule_rays import first_hits
 from lip_ros.core.skeleton import forward_kinematics, load_skeleton
 from lip_ros.lip.surface_fit import SURFACE_FIT, SurfaceFitConfig, SurfaceFitter
+from lip_ros.lip.surface_kernel import normal_equations
 
 _FACING_THE_LIDAR = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # M (x left, y up, z fwd) in L
 
@@ -117,3 +119,58 @@ def test_the_shift_is_bounded():
     config = SurfaceFitConfig(max_shift_m=0.05)
     fit = SurfaceFitter(config).fit(points, rot, 1.0, pelvis + np.array([0.0, 0.3, 0.0]))
     assert np.linalg.norm(fit.translation - (pelvis + np.array([0.0, 0.3, 0.0]))) <= 0.05 + 1e-9
+
+
+def _normal_equations_by_arrays(points, ray, ranges, t, a, ab, radius, r0, girth, da, db, huber_m, noise_m,
+                                miss_weight, min_cos, n_girths):
+    """The normal equations of one Gauss-Newton step as NumPy array operations (the fit's code before it was
+    compiled): the reference the compiled kernel is held to."""
+    hit_range, met = first_hits(-t, ray, a, a + ab, radius)
+    hit = met >= 0
+    p = np.where(hit[:, None], ray * np.where(hit, hit_range, 0.0)[:, None], points) - t
+    k = met.copy()
+    seg = np.clip(np.einsum("nkj,kj->nk", p[~hit, None] - a, ab) / np.einsum("kj,kj->k", ab, ab), 0.0, 1.0)
+    gap = np.linalg.norm(p[~hit, None] - (a + seg[..., None] * ab), axis=-1) - radius
+    k[~hit] = np.argmin(gap, axis=1)
+    s = np.clip(np.einsum("nj,nj->n", p - a[k], ab[k]) / np.einsum("nj,nj->n", ab[k], ab[k]), 0.0, 1.0)
+    diff = p - (a[k] + s[:, None] * ab[k])
+    dist = np.linalg.norm(diff, axis=1)
+    normal = diff / np.maximum(dist, 1e-9)[:, None]
+    res = np.where(hit, np.maximum(-np.einsum("nj,nj->n", normal, ray), min_cos) * (hit_range - ranges),
+                   dist - radius[k])
+    weight = np.minimum(1.0, huber_m / np.maximum(np.abs(res), 1e-12)) / noise_m**2
+    weight[~hit] *= miss_weight
+    jac = np.zeros((len(p), 3 + n_girths + len(da)))
+    jac[:, :3] = -normal
+    jac[np.arange(len(p)), 3 + girth[k]] = -r0[k]
+    dq = da[:, k] + s[None, :, None] * (db[:, k] - da[:, k])
+    jac[:, 3 + n_girths:] = -np.einsum("gnj,nj->ng", dq, normal)
+    return jac.T @ (weight[:, None] * jac), -jac.T @ (weight * res), res
+
+
+@pytest.mark.parametrize("groups", [1, 3])
+def test_the_compiled_normal_equations_are_the_array_formulas(groups):
+    """The kernel, a point at a time, gives the normal equations the array formulas give (to rounding): points
+    whose rays meet the body, points beside it (misses, the nearest capsule's surface) and far outliers."""
+    rng = np.random.default_rng(11)
+    points, rot, pelvis = _scan(1.2, 0.9, {"spine": 1.05}, 0.3, rng, noise_m=0.02)
+    points = np.concatenate([points, pelvis + rng.uniform(-0.6, 0.6, (60, 3))])  # beside the body, some inside
+    skeleton = load_skeleton()
+    body = BodyModel(skeleton)
+    t = pelvis + [0.03, -0.02, 0.01]  # the body not quite where the points are
+    glob, pos = forward_kinematics(skeleton, rot)
+    a, b, radius = body.capsules(glob, pos)
+    r0 = radius / rng.uniform(0.8, 1.2, len(radius))
+    girth = rng.integers(0, 3, len(radius))
+    da, db = (rng.normal(0.0, 0.1, (groups, len(radius), 3)) for _ in range(2))
+    ranges = np.linalg.norm(points, axis=1)
+    args = (points, points / ranges[:, None], ranges, t, a, b - a, radius, r0, girth, da, db, 0.03, 0.02, 0.3,
+            0.1, 3)
+    H, rhs, res = normal_equations(*args)
+    H_ref, rhs_ref, res_ref = _normal_equations_by_arrays(*args)
+    hits = np.isfinite(first_hits(-t, args[1], a, b, radius)[0])
+    assert 0.3 < hits.mean() < 0.95  # both kinds of points
+    np.testing.assert_allclose(res, res_ref, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(H, H_ref, rtol=1e-10, atol=1e-8 * np.abs(H_ref).max())
+    np.testing.assert_allclose(rhs, rhs_ref, rtol=1e-10, atol=1e-8 * np.abs(rhs_ref).max())
+    np.testing.assert_array_equal(H, H.T)
