@@ -16,7 +16,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 ROS_DOMAIN_ID ?= $(shell $(PYTHON) -c 'import random; print(random.randint(1, 100))')
 export ROS_DOMAIN_ID
 
-.PHONY: venv demo demo-bag demo-hsc4d test bench urdf clean clean-shm
+.PHONY: venv kernels demo demo-bag demo-hsc4d test bench urdf clean clean-shm
 
 venv: $(INSTALLED)
 
@@ -26,7 +26,13 @@ $(INSTALLED): setup.py setup.cfg pyproject.toml package.xml
 	$(PY) -m pip install --quiet -e ".[pypi,test]"
 	@touch $@
 
-demo: $(INSTALLED)
+# numba compiles the package's kernels (lip_ros.core.capsule_rays, kinematics_kernel, lip_ros.lip.surface_kernel)
+# when they are first imported and caches them beside the sources: some seconds after an install or a change to
+# them, then a fraction of a second. Done here once, not in each test worker or node that would import them first.
+kernels: $(INSTALLED)
+	@$(PY) -c 'import lip_ros.lip.surface_fit'
+
+demo: kernels
 	rm -rf $(OUT)/demo_walk $(OUT)/demo_walk_calibration.yaml
 	$(VENV)/bin/lip_process_bag bags/demo_walk $(OUT)/demo_walk --plot $(OUT)/demo_walk.png
 
@@ -38,7 +44,7 @@ $(HSC4D_DEMO)/metadata.yaml: | $(INSTALLED)
 	rm -rf $(HSC4D_DEMO)
 	$(VENV)/bin/lip_rig site-bag --seed 3 --seconds 30 --out $(HSC4D_DEMO)
 
-demo-hsc4d: $(INSTALLED) $(HSC4D_DEMO)/metadata.yaml
+demo-hsc4d: kernels $(HSC4D_DEMO)/metadata.yaml
 	rm -rf $(OUT)/hsc4d_demo $(OUT)/hsc4d_demo_refined
 	$(VENV)/bin/lip_process_bag $(HSC4D_DEMO) $(OUT)/hsc4d_demo --plot $(OUT)/hsc4d_demo.png --refine
 
@@ -48,7 +54,7 @@ demo-bag: $(INSTALLED)
 	$(VENV)/bin/lip_rig make-bag --scenario walk --seconds 13 --seed 1 --distance 6 --columns 512 \
 		--azimuth-window 150 210 --out bags/demo_walk
 
-test: $(INSTALLED)
+test: kernels
 	$(VENV)/bin/ruff check .
 	$(PY) -m pytest test -q -p no:cacheprovider -n $(TEST_WORKERS) --durations=30
 

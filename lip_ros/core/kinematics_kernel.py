@@ -2,21 +2,23 @@
 
 Twenty-three joints, each its parent's rotation times its own and its parent's position plus the rotated offset:
 as NumPy operations on (..., 3, 3) arrays this took about 0.27 ms a pose, most of it the cost of 46 small array
-operations, and a LIP frame runs it four times; compiled, a few microseconds. Compiled on the first call and
-cached on disk as :mod:`lip_ros.core.capsule_rays` says.
+operations, and a LIP frame runs it four times; compiled, a few microseconds. Compiled when imported, and
+cached on disk, as :mod:`lip_ros.core.capsule_rays` says.
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+from numba import types
 
-from lip_ros.core.capsule_rays import COMPILE
+from lip_ros.core.capsule_rays import COMPILE, array_in
 
 __all__ = ["chain"]
 
 
-@numba.njit(**COMPILE)
+@numba.njit(types.Tuple((types.float64[:, :, :, ::1], types.float64[:, :, ::1]))(
+    array_in(4), array_in(3), array_in(2), array_in(1, types.int64)), **COMPILE)
 def chain(local_rot: np.ndarray, offsets: np.ndarray, root_pos: np.ndarray, parents: np.ndarray
           ) -> tuple[np.ndarray, np.ndarray]:
     """Global rotations (B, J, 3, 3) and positions (B, J, 3) of B poses: local rotations (B, J, 3, 3) (``[:, 0]``

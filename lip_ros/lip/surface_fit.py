@@ -86,23 +86,14 @@ class SurfaceFitter:
         self._skeleton = load_skeleton()
         self._body = BodyModel(self._skeleton)  # the contract skeleton's capsules, scaled per frame
         part = [n.removeprefix("left_").removeprefix("right_") for n in self._body.names]
-        self._group = np.array([0 if p in TORSO_PARTS else 1 if p in LIMB_PARTS else 2 for p in part])  # girths
+        self._group = np.array([0 if p in TORSO_PARTS else 1 if p in LIMB_PARTS else 2 for p in part], dtype=np.int64)
         groups = self.config.proportion_groups
         self._gain = np.zeros((len(groups), NUM_JOINTS, 1))  # 1 on the offsets each bone group's length scales
         for i, group in enumerate(groups):
             self._gain[i, [self._skeleton.index(j) for g in group.split("+") for j in PROPORTION_GROUPS[g]]] = 1.0
         sd = np.array([self.config.girth_prior] * _GIRTHS + [self.config.proportion_prior] * len(groups))
         self._prior = np.diag(1.0 / sd**2)
-        self._compile()
         self.reset()
-
-    def _compile(self) -> None:
-        """Compile the fit's kernel (or load it from numba's cache) now rather than on the first frame: a fit of
-        a few points in front of a body at rest."""
-        self.reset()
-        front = np.array([5.0, 0.0, 0.0])
-        self.fit(front + 0.01 * np.arange(3 * self.config.min_points).reshape(-1, 3),
-                 np.broadcast_to(np.eye(3), (NUM_JOINTS, 3, 3)), 1.0, front)
 
     def reset(self) -> None:
         """Forget the performer's shape (and the last correction)."""

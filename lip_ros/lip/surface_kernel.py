@@ -5,7 +5,7 @@ first meets the posed capsule body (:func:`lip_ros.core.capsule_rays.first_hits`
 ray that misses the body, the capsule nearest the point, the point's residual and its row of the Jacobian, summed
 into ``H`` and ``rhs``. As NumPy array operations a step took about 0.6 ms for 200 points, most of it the cost of a
 hundred small array operations; compiled, a point at a time, about 0.2 ms, without the GIL held (the graph's other
-threads go on). Compiled on the first call and cached on disk as :mod:`lip_ros.core.capsule_rays` says.
+threads go on). Compiled when imported, and cached on disk, as :mod:`lip_ros.core.capsule_rays` says.
 """
 
 from __future__ import annotations
@@ -14,8 +14,9 @@ from math import inf, sqrt
 
 import numba
 import numpy as np
+from numba import types
 
-from lip_ros.core.capsule_rays import COMPILE, first_hits
+from lip_ros.core.capsule_rays import COMPILE, array_in, first_hits
 
 __all__ = ["normal_equations"]
 
@@ -30,7 +31,10 @@ def _nearest_on_axis(p: np.ndarray, a: np.ndarray, ab: np.ndarray) -> tuple[floa
     return s, p[0] - (a[0] + s * ab[0]), p[1] - (a[1] + s * ab[1]), p[2] - (a[2] + s * ab[2])
 
 
-@numba.njit(**COMPILE)
+@numba.njit(types.Tuple((types.float64[:, :], types.float64[:], types.float64[:]))(
+    array_in(2), array_in(2), array_in(1), array_in(1), array_in(2), array_in(2), array_in(1), array_in(1),
+    array_in(1, types.int64), array_in(3), array_in(3), types.float64, types.float64, types.float64, types.float64,
+    types.int64), **COMPILE)
 def normal_equations(points: np.ndarray, ray: np.ndarray, ranges: np.ndarray, t: np.ndarray, a: np.ndarray,
                      ab: np.ndarray, radius: np.ndarray, r0: np.ndarray, girth: np.ndarray, da: np.ndarray,
                      db: np.ndarray, huber_m: float, noise_m: float, miss_weight: float, min_cos: float,
