@@ -26,11 +26,12 @@ $(INSTALLED): setup.py setup.cfg pyproject.toml package.xml
 	$(PY) -m pip install --quiet -e ".[pypi,test]"
 	@touch $@
 
-# numba compiles the package's kernels (lip_ros.core.capsule_rays, kinematics_kernel, lip_ros.lip.surface_kernel)
-# when they are first imported and caches them beside the sources: some seconds after an install or a change to
-# them, then a fraction of a second. Done here once, not in each test worker or node that would import them first.
+# numba compiles the package's kernels (lip_ros.core.capsule_rays, kinematics_kernel, lip_ros.lip.surface_kernel,
+# lip_ros.lip.segmentation.clusters) when they are first imported and caches them beside the sources: some seconds
+# after an install or a change to them, then a fraction of a second. Done here once, not in each test worker or node
+# that would import them first.
 kernels: $(INSTALLED)
-	@$(PY) -c 'import lip_ros.lip.surface_fit'
+	@$(PY) -c 'import lip_ros.lip.surface_fit, lip_ros.lip.segmentation.clusters'
 
 demo: kernels
 	rm -rf $(OUT)/demo_walk $(OUT)/demo_walk_calibration.yaml

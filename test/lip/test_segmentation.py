@@ -454,6 +454,38 @@ def test_clusters_join_across_the_column_wrap_and_split_in_depth():
     assert c.top[0] == pytest.approx(xyz[0, 2] + 1.2) and c.width[2] == 0.0
 
 
+@pytest.mark.parametrize("wrap", [True, False])
+def test_clusters_are_the_connected_components_of_every_close_pair_of_neighbours(wrap):
+    """The compiled clustering against its definition: every pair of points within ``reach`` pixels and within
+    the link distance, linked (brute force), and scipy's connected components of that graph, the same labels."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(5)
+    height, width, reach = 12, 40, 2
+    flat = rng.choice(height * width, 300, replace=False)
+    rows, cols = flat // width, flat % width
+    rng_m = rng.uniform(4.0, 6.0, len(flat)).astype(np.float32)
+    xyz = (rng.normal(0.0, 0.1, (len(flat), 3)) + [[5.0, 0.0, 0.0]] + 0.05 * np.column_stack([rows, cols, 0 * rows])
+           ).astype(np.float32)
+    angles, link_m, link_spacing = (0.01, 0.02), 0.05, 1.0
+    labels, k = link_components(rows, cols, xyz, rng_m, (height, width), wrap, angles, link_m, link_spacing, reach)
+    dr = rows[None, :] - rows[:, None]  # j's offset from i
+    dc = cols[None, :] - cols[:, None]
+    if wrap:
+        dc = (dc + width // 2) % width - width // 2
+    near = (np.abs(dr) <= reach) & (np.abs(dc) <= reach) & ~np.eye(len(flat), dtype=bool)
+    first = np.where(dr > 0, True, (dr == 0) & (dc > 0))  # i the pair's first pixel: its reach counts
+    limit = link_m + link_spacing * rng_m[:, None] * np.hypot(dr * angles[0], dc * angles[1])
+    close = np.linalg.norm(xyz[:, None] - xyz[None], axis=2) <= limit
+    i, j = np.nonzero(near & first & close)
+    assert 100 < len(i) < 1000, len(i)  # links, not all of the pairs
+    k_ref, ref = connected_components(coo_matrix((np.ones(len(i)), (i, j)), shape=(len(flat),) * 2), directed=False)
+    assert 5 < k_ref < 250, k_ref
+    assert k == k_ref
+    np.testing.assert_array_equal(labels, ref)
+
+
 def test_association_is_nearest_first_within_gates():
     predicted = np.array([[0.0, 0.0], [1.0, 0.0]])
     centroids = np.array([[0.9, 0.0], [0.2, 0.0], [5.0, 0.0]])

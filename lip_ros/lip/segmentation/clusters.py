@@ -7,17 +7,21 @@ neighbour lies at most ``reach`` rows and columns away in the image (so one
 missing pixel does not split a thin limb) and within a 3D distance that grows
 with the pixels' spacing at that range, ``link_m + link_spacing * r * angle``
 (``angle`` the angle between the two beams). Columns wrap around when the
-image is the full sweep. Components come from ``scipy.sparse.csgraph``; all
-work is vectorised over the points.
+image is the full sweep. The links and the components (union-find, labelled in the order of each component's
+first point, as ``scipy.sparse.csgraph.connected_components`` labels them) are compiled with numba: about 0.5 ms
+a frame as array operations and a sparse graph, 0.04 ms compiled, the same labels (130 frames of the demo bag
+compared when it was replaced); the descriptors are vectorised over the points.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
+from numba import types
+
+from lip_ros.core.capsule_rays import COMPILE, array_in
 
 __all__ = ["Clusters", "link_components", "describe_clusters"]
 
@@ -66,41 +70,74 @@ def link_components(
 ) -> tuple[np.ndarray, int]:
     """Cluster labels (N,) and their number for points at pixels (``rows``, ``cols``) of a ``grid`` (H, C).
 
-    ``xyz`` (N, 3) and ``range_m`` (N,) are the points; ``pixel_angle`` the
-    angles (rad) between neighbouring rows and columns; ``wrap``: column C-1
-    neighbours column 0.
+    ``xyz`` (N, 3) and ``range_m`` (N,) are the points (float32, as the segmenter reads them); ``pixel_angle``
+    the angles (rad) between neighbouring rows and columns; ``wrap``: column C-1 neighbours column 0.
     """
-    n = len(rows)
-    if n == 0:
-        return np.zeros(0, dtype=np.int64), 0
-    height, width = grid
-    index = np.full(grid, -1, dtype=np.int64)
-    index[rows, cols] = np.arange(n)
     offsets = _forward_offsets(reach)
-    r2 = rows[:, None] + offsets[:, 0]
-    c2 = cols[:, None] + offsets[:, 1]
-    if wrap:
-        c2 %= width
-        inside = r2 < height
-    else:
-        inside = (r2 < height) & (c2 >= 0) & (c2 < width)
-    neighbour = np.full(r2.shape, -1, dtype=np.int64)
-    neighbour[inside] = index[r2[inside], c2[inside]]
-    head, which = np.nonzero(neighbour >= 0)
-    tail = neighbour[head, which]
     spacing = np.hypot(offsets[:, 0] * pixel_angle[0], offsets[:, 1] * pixel_angle[1])
-    limit = link_m + link_spacing * range_m[head] * spacing[which]
-    square = np.zeros(len(head), dtype=xyz.dtype)
-    for axis in np.ascontiguousarray(xyz.T):  # 1-D gathers: much faster than rows of (N, 3)
-        d = axis[head] - axis[tail]
-        square += d * d
-    close = square <= limit * limit
-    head, tail = head[close], tail[close]  # head ascending (np.nonzero's order): CSR rows as they are
-    indptr = np.zeros(n + 1, dtype=np.int32)
-    np.cumsum(np.bincount(head, minlength=n), out=indptr[1:])
-    graph = csr_matrix((np.ones(len(head)), tail.astype(np.int32), indptr), shape=(n, n))
-    k, labels = connected_components(graph, directed=False)
-    return labels.astype(np.int64), int(k)
+    labels, k = _link_labels(np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64),
+                             np.asarray(xyz, dtype=np.float32), np.asarray(range_m, dtype=np.float32), grid[0],
+                             grid[1], wrap, offsets, spacing, link_m, link_spacing)
+    return labels, int(k)
+
+
+@numba.njit(types.int64(types.int64[::1], types.int64), **COMPILE)
+def _root(parent: np.ndarray, i: int) -> int:
+    """The root of ``i``'s tree in the union-find forest ``parent``, halving the path on the way."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@numba.njit(types.Tuple((types.int64[::1], types.int64))(
+    array_in(1, types.int64), array_in(1, types.int64), array_in(2, types.float32), array_in(1, types.float32),
+    types.int64, types.int64, types.boolean, array_in(2, types.int64), array_in(1), types.float64, types.float64),
+    **COMPILE)
+def _link_labels(rows: np.ndarray, cols: np.ndarray, xyz: np.ndarray, range_m: np.ndarray, height: int, width: int,
+                 wrap: bool, offsets: np.ndarray, spacing: np.ndarray, link_m: float, link_spacing: float
+                 ) -> tuple[np.ndarray, int]:
+    """:func:`link_components` compiled: each point linked to its neighbours at the forward ``offsets`` (M, 2)
+    (``spacing`` (M,): their angles) that lie close enough, the components labelled in the order of their first
+    points. The arithmetic is NumPy's of the array formulas it replaced: float32 distances, the link's reach in
+    float64 from the float32 product of ``link_spacing`` and the range."""
+    n = rows.shape[0]
+    index = np.full((height, width), -1, np.int64)
+    for i in range(n):
+        index[rows[i], cols[i]] = i
+    parent = np.arange(n)
+    per_metre = np.float32(link_spacing)
+    for i in range(n):
+        for o in range(offsets.shape[0]):
+            r2, c2 = rows[i] + offsets[o, 0], cols[i] + offsets[o, 1]
+            if r2 >= height:
+                continue
+            if wrap:
+                c2 %= width
+            elif c2 < 0 or c2 >= width:
+                continue
+            j = index[r2, c2]
+            if j < 0:
+                continue
+            reach = link_m + (per_metre * range_m[i]) * spacing[o]
+            d0, d1, d2 = xyz[i, 0] - xyz[j, 0], xyz[i, 1] - xyz[j, 1], xyz[i, 2] - xyz[j, 2]
+            square = d0 * d0
+            square += d1 * d1
+            square += d2 * d2
+            if square <= reach * reach:
+                a, b = _root(parent, i), _root(parent, j)
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    labels = np.empty(n, np.int64)
+    label_of_root = np.full(n, -1, np.int64)
+    k = 0
+    for i in range(n):
+        r = _root(parent, i)
+        if label_of_root[r] < 0:
+            label_of_root[r] = k
+            k += 1
+        labels[i] = label_of_root[r]
+    return labels, k
 
 
 def describe_clusters(labels: np.ndarray, k: int, xyz: np.ndarray, height: np.ndarray) -> Clusters:
