@@ -26,10 +26,10 @@ $(INSTALLED): setup.py setup.cfg pyproject.toml package.xml
 	$(PY) -m pip install --quiet -e ".[pypi,test]"
 	@touch $@
 
-# numba compiles the package's kernels (lip_ros.core.capsule_rays, kinematics_kernel, lip_ros.lip.surface_kernel,
-# lip_ros.lip.segmentation.clusters) when they are first imported and caches them beside the sources: some seconds
-# after an install or a change to them, then a fraction of a second. Done here once, not in each test worker or node
-# that would import them first.
+# numba compiles the package's hot loops (lip_ros.core.compiled lists them) when their modules are first imported
+# and caches them beside the sources: some seconds after an install or a change to them, then a fraction of a
+# second. Done here once, before the test workers and nodes import them (a colcon install elsewhere, as the
+# install-layout test's, fills its own cache on its first import).
 kernels: $(INSTALLED)
 	@$(PY) -c 'import lip_ros.lip.surface_fit, lip_ros.lip.segmentation.clusters'
 

@@ -28,7 +28,7 @@ CORE = [
     "embreex>=4.4,<5",  # ray casting of the HSC4D rig's scenes (lip_ros.rig.mesh_raycast)
     "kiss-icp==1.3.0",  # the HSC4D LiDAR odometry's registration core (lip_ros.hsc4d.lidar_odometry)
     "gtsam==4.3.0",  # the HSC4D trajectory's pose graph (lip_ros.hsc4d.pose_graph)
-    "numba>=0.60,<1",  # compiled ray casting and surface fit (lip_ros.core.capsule_rays, lip_ros.lip.surface_kernel)
+    "numba>=0.60,<1",  # the compiled hot loops (lip_ros.core.compiled lists them)
 ]
 TEST = [
     "pytest>=8,<10",

@@ -6,9 +6,9 @@
   ``lip_msgs_py``; the ROS-free packages never import the nodes or tools either.
 - Heavy libraries only in the modules that wrap them: torch in the LIP networks, their training, the
   torch kinematics, the torch thread count and the HSC4D scene-aware optimisation; kiss-icp and gtsam each in
-  one module of the HSC4D branch; embreex in the rig's mesh ray casting; numba in the four compiled loops
-  (capsule ray casting, forward kinematics' joint chain, the LIP surface fit's normal equations, the LIP
-  segmentation's clustering).
+  one module of the HSC4D branch; embreex in the rig's mesh ray casting; numba in its options' module and the
+  four compiled loops (capsule ray casting, forward kinematics' joint chain, the LIP surface fit's normal
+  equations, the LIP segmentation's clustering).
 - Every installed executable starts in ``lip_ros.nodes`` or ``lip_ros.tools``.
 """
 
@@ -37,8 +37,8 @@ HEAVY = {
     "kiss_icp": (("lip_ros.hsc4d",), 1),
     "gtsam": (("lip_ros.hsc4d",), 1),
     "embreex": (("lip_ros.rig.mesh_raycast",), 1),
-    "numba": (("lip_ros.core.capsule_rays", "lip_ros.core.kinematics_kernel", "lip_ros.lip.surface_kernel",
-               "lip_ros.lip.segmentation.clusters"), 4),
+    "numba": (("lip_ros.core.compiled", "lip_ros.core.capsule_rays", "lip_ros.core.kinematics_kernel",
+               "lip_ros.lip.surface_kernel", "lip_ros.lip.segmentation.clusters"), 5),
 }
 
 

@@ -4,9 +4,8 @@ ray casting (the rig's LiDARs) and of the LIP surface fit's inner loop (:mod:`li
 One ray at a time: a capsule whose bounding sphere the ray misses is skipped, the others are met where the ray
 enters their open cylinder or either end sphere. The same operations in the same order as the NumPy array
 formulas they replaced: the same ranges and capsules bit for bit (checked on 200 000 rays and a full rig sweep
-when they were replaced), the rig's body ray casting four times faster, without the GIL held. Compiled when
-imported and cached on disk by numba (some seconds the first time after an install or a change, then a fraction
-of a second; ``make kernels`` does it; ``NUMBA_CACHE_DIR`` moves the cache).
+when they were replaced), the body's ray casting four times faster, without the GIL held. How it is compiled
+and cached: :mod:`lip_ros.core.compiled`.
 """
 
 from __future__ import annotations
@@ -17,21 +16,12 @@ import numba
 import numpy as np
 from numba import types
 
-__all__ = ["COMPILE", "array_in", "sphere_entry", "capsule_entry", "first_hits"]
+from lip_ros.core.compiled import COMPILE, array_in
 
-#: numba's options for every compiled function of the package: cached on disk, the GIL released while it runs.
-#: The functions called from Python are given their types (:func:`array_in`), so they are compiled (or loaded
-#: from the cache) when their module is imported, never on a first frame.
-COMPILE = {"cache": True, "nogil": True}
-
-
-def array_in(ndim: int, dtype: types.Type = types.float64) -> types.Array:
-    """The numba type of an input array a compiled function only reads: any layout, read-only or not."""
-    return types.Array(dtype, ndim, "A", readonly=True)
-
+__all__ = ["first_hits"]
 
 @numba.njit(**COMPILE)
-def sphere_entry(o: np.ndarray, d: np.ndarray, c: np.ndarray, r: float) -> float:
+def _sphere_entry(o: np.ndarray, d: np.ndarray, c: np.ndarray, r: float) -> float:
     """Where the unit ray from ``o`` along ``d`` enters the sphere (centre ``c``, radius ``r``); inf if it misses it
     or the sphere is behind."""
     oc0, oc1, oc2 = o[0] - c[0], o[1] - c[1], o[2] - c[2]
@@ -45,7 +35,7 @@ def sphere_entry(o: np.ndarray, d: np.ndarray, c: np.ndarray, r: float) -> float
 
 
 @numba.njit(**COMPILE)
-def capsule_entry(o: np.ndarray, d: np.ndarray, a: np.ndarray, b: np.ndarray, r: float) -> float:
+def _capsule_entry(o: np.ndarray, d: np.ndarray, a: np.ndarray, b: np.ndarray, r: float) -> float:
     """Where the unit ray from ``o`` along ``d`` enters the capsule (ends ``a``, ``b``, radius ``r``): the nearest
     of its open cylinder and its two end spheres; inf if none."""
     ba0, ba1, ba2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
@@ -63,16 +53,27 @@ def capsule_entry(o: np.ndarray, d: np.ndarray, a: np.ndarray, b: np.ndarray, r:
         y = baoa + t * bard
         if t > 0.0 and 0.0 < y < baba:
             side = t
-    return min(side, min(sphere_entry(o, d, a, r), sphere_entry(o, d, b, r)))
+    return min(side, min(_sphere_entry(o, d, a, r), _sphere_entry(o, d, b, r)))
 
 
-@numba.njit(types.Tuple((types.float64[:], types.int64[:]))(array_in(1), array_in(2), array_in(2), array_in(2),
-                                                           array_in(1)), **COMPILE)
 def first_hits(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
     """Where unit rays from ``origin`` (3,) along ``dirs`` (N, 3) first meet capsules (ends a, b (K, 3), radii
     r (K,)): the range (N,) (inf where none) and the capsule met (N,) (-1 where none; of capsules met at the same
     range, the last). Only capsules whose bounding sphere the ray passes are tested."""
+    origin, dirs, a, b, r = (np.asarray(x, dtype=np.float64) for x in (origin, dirs, a, b, r))
+    if origin.shape != (3,) or dirs.ndim != 2 or dirs.shape[1] != 3 or a.ndim != 2 or a.shape[1] != 3 \
+            or b.shape != a.shape or r.shape != a.shape[:1]:
+        raise ValueError(f"need origin (3,), dirs (N, 3), a and b (K, 3), r (K,): {origin.shape}, {dirs.shape}, "
+                         f"{a.shape}, {b.shape}, {r.shape}")
+    return _first_hits(origin, dirs, a, b, r)
+
+
+@numba.njit(types.Tuple((types.float64[:], types.int64[:]))(array_in(1), array_in(2), array_in(2), array_in(2),
+                                                           array_in(1)), **COMPILE)
+def _first_hits(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`first_hits` compiled (shapes checked by it)."""
     n, k_count = dirs.shape[0], a.shape[0]
     centre = np.empty((k_count, 3))
     reach = np.empty(k_count)
@@ -90,7 +91,7 @@ def first_hits(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarra
         for k in range(k_count):
             along = d[0] * centre[k, 0] + d[1] * centre[k, 1] + d[2] * centre[k, 2]
             if centre_sq[k] - along * along <= reach[k] * reach[k] and along > -reach[k]:
-                entry = capsule_entry(origin, d, a[k], b[k], r[k])
+                entry = _capsule_entry(origin, d, a[k], b[k], r[k])
                 if entry < inf and entry <= best[i]:
                     best[i], met[i] = entry, k
     return best, met

@@ -1,4 +1,4 @@
-"""The SMPL 24-joint skeleton of the interface contract and its kinematics (numpy).
+"""The SMPL 24-joint skeleton of the interface contract and its kinematics (the joint chain compiled with numba).
 
 Model frame M: x = the body's left, y = up, z = forward; zero pose = T-pose.
 The global rotation of joint j is ``R_global[parent] @ R_local[j]`` and its
@@ -159,9 +159,9 @@ def forward_kinematics(
     lead = local_rot.shape[:-3]
     off = skeleton.offsets if offsets is None else np.asarray(offsets, dtype=np.float64)
     root = np.zeros(3) if root_pos is None else np.asarray(root_pos, dtype=np.float64)
-    glob, pos = chain(np.ascontiguousarray(local_rot.reshape((-1, NUM_JOINTS, 3, 3))),
-                      np.ascontiguousarray(np.broadcast_to(off, lead + (NUM_JOINTS, 3)).reshape((-1, NUM_JOINTS, 3))),
-                      np.ascontiguousarray(np.broadcast_to(root, lead + (3,)).reshape((-1, 3))), skeleton.parents)
+    glob, pos = chain(local_rot.reshape((-1, NUM_JOINTS, 3, 3)),
+                      np.broadcast_to(off, lead + (NUM_JOINTS, 3)).reshape((-1, NUM_JOINTS, 3)),
+                      np.broadcast_to(root, lead + (3,)).reshape((-1, 3)), np.asarray(skeleton.parents, np.int64))
     return glob.reshape(lead + (NUM_JOINTS, 3, 3)), pos.reshape(lead + (NUM_JOINTS, 3))
 
 

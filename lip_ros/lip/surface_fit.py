@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lip_ros.core.body import LIMB_PARTS, TORSO_PARTS, BodyModel
+from lip_ros.core.capsule_rays import first_hits
 from lip_ros.core.skeleton import NUM_JOINTS, PROPORTION_GROUPS, forward_kinematics, load_skeleton
 from lip_ros.lip.surface_kernel import normal_equations
 
@@ -157,8 +158,10 @@ class SurfaceFitter:
             change = shape[_GIRTHS:] - prior_shape[_GIRTHS:]
             a = a0 + np.einsum("g,gkj->kj", change, da)
             ab = b0 + np.einsum("g,gkj->kj", change, db) - a
-            H, rhs, res = normal_equations(points, ray, ranges, t, a, ab, r0 * shape[self._group], r0, self._group,
-                                           da, db, c.huber_m, c.point_noise_m, c.miss_weight, _MIN_COS, _GIRTHS)
+            radius = r0 * shape[self._group]
+            hit_ranges, met = first_hits(-t, ray, a, a + ab, radius)  # where each ray meets the body (root-relative)
+            H, rhs, res = normal_equations(points, ray, ranges, t, a, ab, radius, r0, self._group, da, db, hit_ranges,
+                                           met, c.huber_m, c.point_noise_m, c.miss_weight, _MIN_COS, _GIRTHS)
             H_data = H.copy()
             H[:3, :3] += prior_t * np.eye(3)
             rhs[:3] -= prior_t * (t - t0)

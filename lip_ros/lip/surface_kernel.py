@@ -1,11 +1,12 @@
 """The surface fit's inner loop, compiled (numba): one Gauss-Newton step's normal equations over a frame's points.
 
-:meth:`lip_ros.lip.surface_fit.SurfaceFitter.fit` spends its time here: for each performer point, where its ray
-first meets the posed capsule body (:func:`lip_ros.core.capsule_rays.first_hits`), the capsule it meets or, for a
-ray that misses the body, the capsule nearest the point, the point's residual and its row of the Jacobian, summed
-into ``H`` and ``rhs``. As NumPy array operations a step took about 0.6 ms for 200 points, most of it the cost of a
-hundred small array operations; compiled, a point at a time, about 0.2 ms, without the GIL held (the graph's other
-threads go on). Compiled when imported, and cached on disk, as :mod:`lip_ros.core.capsule_rays` says.
+:meth:`lip_ros.lip.surface_fit.SurfaceFitter.fit` spends its time here: for each performer point, given where its
+ray first meets the posed capsule body (:func:`lip_ros.core.capsule_rays.first_hits`, called by the fit), the
+capsule it meets or, for a ray that misses the body, the capsule nearest the point, the point's residual and its
+row of the Jacobian, summed into ``H`` and ``rhs``. As NumPy array operations a step took about 0.6 ms for 200
+points, most of it the cost of a hundred small array operations; compiled, a point at a time, about 0.2 ms,
+without the GIL held (the graph's other threads go on). How it is compiled and cached:
+:mod:`lip_ros.core.compiled`.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numba
 import numpy as np
 from numba import types
 
-from lip_ros.core.capsule_rays import COMPILE, array_in, first_hits
+from lip_ros.core.compiled import COMPILE, array_in
 
 __all__ = ["normal_equations"]
 
@@ -33,37 +34,38 @@ def _nearest_on_axis(p: np.ndarray, a: np.ndarray, ab: np.ndarray) -> tuple[floa
 
 @numba.njit(types.Tuple((types.float64[:, :], types.float64[:], types.float64[:]))(
     array_in(2), array_in(2), array_in(1), array_in(1), array_in(2), array_in(2), array_in(1), array_in(1),
-    array_in(1, types.int64), array_in(3), array_in(3), types.float64, types.float64, types.float64, types.float64,
-    types.int64), **COMPILE)
+    array_in(1, types.int64), array_in(3), array_in(3), array_in(1), array_in(1, types.int64), types.float64,
+    types.float64, types.float64, types.float64, types.int64), **COMPILE)
 def normal_equations(points: np.ndarray, ray: np.ndarray, ranges: np.ndarray, t: np.ndarray, a: np.ndarray,
                      ab: np.ndarray, radius: np.ndarray, r0: np.ndarray, girth: np.ndarray, da: np.ndarray,
-                     db: np.ndarray, huber_m: float, noise_m: float, miss_weight: float, min_cos: float,
-                     n_girths: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     db: np.ndarray, hit_ranges: np.ndarray, met: np.ndarray, huber_m: float, noise_m: float,
+                     miss_weight: float, min_cos: float, n_girths: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One Gauss-Newton step of the surface fit at the body's position ``t`` (3,): the weighted normal equations
     ``H`` (M, M) and ``rhs`` (M,) over the unknowns (the translation, ``n_girths`` girths, then the G bone-group
     lengths: M = 3 + n_girths + G), no priors added, and each point's residual (N,).
 
     ``points`` (N, 3) in the sensor's frame, their unit rays and ranges; the body's capsules root-relative: ends
-    ``a`` and ``a + ab`` (K, 3), radii ``radius`` (K,), the contract body's radii ``r0`` (K,) and each capsule's girth
-    group ``girth`` (K,), the ends' derivatives by each bone-group length ``da``, ``db`` (G, K, 3). A point whose ray
-    meets the body: the range error times the cosine of the incidence (at least ``min_cos``); one whose ray misses
-    it: its distance to the nearest capsule's surface, weighted by ``miss_weight``; Huber weights beyond
-    ``huber_m``, over ``noise_m`` squared."""
+    ``a`` and ``a + ab`` (K, 3), radii ``radius`` (K,), the contract body's radii ``r0`` (K,) and each capsule's
+    girth group ``girth`` (K,), the ends' derivatives by each bone-group length ``da``, ``db`` (G, K, 3); where
+    each ray first meets the body and the capsule it meets, ``hit_ranges`` and ``met`` (-1 where none:
+    :func:`lip_ros.core.capsule_rays.first_hits` from the body's origin ``-t``). A point whose ray meets the
+    body: the range error times the cosine of the incidence (at least ``min_cos``); one whose ray misses it: its
+    distance to the nearest capsule's surface, weighted by ``miss_weight``; Huber weights beyond ``huber_m``, over
+    ``noise_m`` squared."""
     n, k_count, g_count = points.shape[0], a.shape[0], da.shape[0]
     m = 3 + n_girths + g_count
     H = np.zeros((m, m))
     rhs = np.zeros(m)
     res_out = np.empty(n)
-    hit_ranges, mets = first_hits(-t, ray, a, a + ab, radius)
     jac = np.empty(m)
     p = np.empty(3)
     for i in range(n):
-        d, hit_range, met = ray[i], hit_ranges[i], mets[i]
-        hit = met >= 0
+        d, hit_range, capsule = ray[i], hit_ranges[i], met[i]
+        hit = capsule >= 0
         if hit:  # where the ray meets the body, root-relative
             for j in range(3):
                 p[j] = d[j] * hit_range - t[j]
-            k = met
+            k = capsule
         else:  # the point itself, and the capsule whose surface is nearest it
             for j in range(3):
                 p[j] = points[i, j] - t[j]

@@ -161,3 +161,9 @@ def test_first_hits_meets_the_nearest_capsule_and_of_equal_ones_the_last():
     assert got[0][0][0] == pytest.approx(4.8) and got[0][1][0] == 1  # the shared sphere: the later capsule
     assert got[1][0][0] == pytest.approx(4.8) and got[1][1][0] == 0  # capsule 0's side, not 2's behind it
     assert [g[0][0] for g in got[2:]] == [np.inf, np.inf] and [g[1][0] for g in got[2:]] == [-1, -1]  # past, behind
+
+
+def test_first_hits_refuses_capsules_of_mismatched_shapes():
+    a = np.zeros((3, 3))
+    with pytest.raises(ValueError, match="r \\(K,\\)"):
+        first_hits(np.zeros(3), np.array([[1.0, 0.0, 0.0]]), a, a + 1.0, np.ones(2))  # compiled: no bounds checks

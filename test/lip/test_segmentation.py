@@ -466,9 +466,10 @@ def test_clusters_are_the_connected_components_of_every_close_pair_of_neighbours
     flat = rng.choice(height * width, 300, replace=False)
     rows, cols = flat // width, flat % width
     rng_m = rng.uniform(4.0, 6.0, len(flat)).astype(np.float32)
-    xyz = (rng.normal(0.0, 0.1, (len(flat), 3)) + [[5.0, 0.0, 0.0]] + 0.05 * np.column_stack([rows, cols, 0 * rows])
-           ).astype(np.float32)
-    angles, link_m, link_spacing = (0.01, 0.02), 0.05, 1.0
+    azimuth = 2.0 * np.pi * cols / width  # a ring of points: the first and last columns are neighbours
+    xyz = (np.column_stack([0.5 * np.cos(azimuth), 0.5 * np.sin(azimuth), 0.05 * rows])
+           + rng.normal(0.0, 0.03, (len(flat), 3))).astype(np.float32)
+    angles, link_m, link_spacing = (0.01, 0.02), 0.03, 0.5
     labels, k = link_components(rows, cols, xyz, rng_m, (height, width), wrap, angles, link_m, link_spacing, reach)
     dr = rows[None, :] - rows[:, None]  # j's offset from i
     dc = cols[None, :] - cols[:, None]
@@ -484,6 +485,30 @@ def test_clusters_are_the_connected_components_of_every_close_pair_of_neighbours
     assert 5 < k_ref < 250, k_ref
     assert k == k_ref
     np.testing.assert_array_equal(labels, ref)
+    across = np.abs(cols[i] - cols[j]) > reach  # links over the column wrap: there only if it wraps
+    assert across.sum() > 5 if wrap else not across.any()
+
+
+def test_links_at_their_limit_are_decided_in_the_points_float32():
+    """A chain of points each about the link distance from the next: the links the float32 points and ranges give
+    (NumPy's arithmetic of the array formulas: float32 squared distances, the limit from the float32 product of
+    ``link_spacing`` and the range), not float64's, which decides some of them otherwise."""
+    rng = np.random.default_rng(2)
+    n, angle, link_m, link_spacing = 2000, 0.004, 0.05, 1.3
+    rng_m = rng.uniform(1.0, 30.0, n).astype(np.float32)
+    limit = link_m + link_spacing * rng_m.astype(np.float64) * angle
+    step = (limit * (1.0 + rng.integers(-3, 4, n) * 3e-8)).astype(np.float32)  # within float32's rounding
+    x = np.concatenate([[0.0], np.cumsum(step[:-1], dtype=np.float64)]).astype(np.float32)
+    xyz = np.column_stack([x, np.zeros(n), np.zeros(n)]).astype(np.float32)
+    labels, _ = link_components(np.zeros(n, dtype=np.int64), np.arange(n), xyz, rng_m, (1, n), False, (0.01, angle),
+                                link_m, link_spacing, 1)
+    gap = np.diff(x)  # float32, as the points' own
+    reach = link_m + (link_spacing * rng_m[:-1]) * np.float64(angle)  # a float32 product, then float64
+    linked = labels[1:] == labels[:-1]
+    assert 0.3 < linked.mean() < 0.7  # at the limit
+    np.testing.assert_array_equal(linked, gap * gap <= reach * reach)
+    reach_in_float64 = link_m + (link_spacing * rng_m[:-1].astype(np.float64)) * angle
+    assert (linked != (gap * gap <= reach_in_float64**2)).any()  # the test tells the two apart
 
 
 def test_association_is_nearest_first_within_gates():

@@ -121,11 +121,10 @@ def test_the_shift_is_bounded():
     assert np.linalg.norm(fit.translation - (pelvis + np.array([0.0, 0.3, 0.0]))) <= 0.05 + 1e-9
 
 
-def _normal_equations_by_arrays(points, ray, ranges, t, a, ab, radius, r0, girth, da, db, huber_m, noise_m,
-                                miss_weight, min_cos, n_girths):
+def _normal_equations_by_arrays(points, ray, ranges, t, a, ab, radius, r0, girth, da, db, hit_range, met, huber_m,
+                                noise_m, miss_weight, min_cos, n_girths):
     """The normal equations of one Gauss-Newton step as NumPy array operations (the fit's code before it was
     compiled): the reference the compiled kernel is held to."""
-    hit_range, met = first_hits(-t, ray, a, a + ab, radius)
     hit = met >= 0
     p = np.where(hit[:, None], ray * np.where(hit, hit_range, 0.0)[:, None], points) - t
     k = met.copy()
@@ -164,13 +163,12 @@ def test_the_compiled_normal_equations_are_the_array_formulas(groups):
     girth = rng.integers(0, 3, len(radius))
     da, db = (rng.normal(0.0, 0.1, (groups, len(radius), 3)) for _ in range(2))
     ranges = np.linalg.norm(points, axis=1)
-    args = (points, points / ranges[:, None], ranges, t, a, b - a, radius, r0, girth, da, db, 0.03, 0.02, 0.3,
-            0.1, 3)
+    ray = points / ranges[:, None]
+    hit_range, met = first_hits(-t, ray, a, b, radius)
+    assert 0.3 < (met >= 0).mean() < 0.95  # both kinds of points
+    args = (points, ray, ranges, t, a, b - a, radius, r0, girth, da, db, hit_range, met, 0.03, 0.02, 0.3, 0.1, 3)
     H, rhs, res = normal_equations(*args)
     H_ref, rhs_ref, res_ref = _normal_equations_by_arrays(*args)
-    hits = np.isfinite(first_hits(-t, args[1], a, b, radius)[0])
-    assert 0.3 < hits.mean() < 0.95  # both kinds of points
     np.testing.assert_allclose(res, res_ref, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(H, H_ref, rtol=1e-10, atol=1e-8 * np.abs(H_ref).max())
     np.testing.assert_allclose(rhs, rhs_ref, rtol=1e-10, atol=1e-8 * np.abs(rhs_ref).max())
-    np.testing.assert_array_equal(H, H.T)

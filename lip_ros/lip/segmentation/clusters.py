@@ -21,7 +21,7 @@ import numba
 import numpy as np
 from numba import types
 
-from lip_ros.core.capsule_rays import COMPILE, array_in
+from lip_ros.core.compiled import COMPILE, array_in
 
 __all__ = ["Clusters", "link_components", "describe_clusters"]
 
@@ -70,14 +70,21 @@ def link_components(
 ) -> tuple[np.ndarray, int]:
     """Cluster labels (N,) and their number for points at pixels (``rows``, ``cols``) of a ``grid`` (H, C).
 
-    ``xyz`` (N, 3) and ``range_m`` (N,) are the points (float32, as the segmenter reads them); ``pixel_angle``
-    the angles (rad) between neighbouring rows and columns; ``wrap``: column C-1 neighbours column 0.
+    ``xyz`` (N, 3) and ``range_m`` (N,) are the points, taken as float32 (as the segmenter reads them: the
+    distances are float32's); ``pixel_angle`` the angles (rad) between neighbouring rows and columns; ``wrap``:
+    column C-1 neighbours column 0.
     """
+    rows, cols = np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64)
+    if len(rows) == 0:
+        return np.zeros(0, dtype=np.int64), 0
+    xyz, range_m = np.asarray(xyz, dtype=np.float32).reshape(-1, 3), np.asarray(range_m, dtype=np.float32)
+    if not (len(cols) == len(xyz) == len(range_m) == len(rows)) or rows.min() < 0 or cols.min() < 0 \
+            or rows.max() >= grid[0] or cols.max() >= grid[1]:
+        raise ValueError(f"{len(rows)} rows, {len(cols)} columns, {len(xyz)} points and {len(range_m)} ranges, "
+                         f"pixels within a {grid} grid, expected")
     offsets = _forward_offsets(reach)
     spacing = np.hypot(offsets[:, 0] * pixel_angle[0], offsets[:, 1] * pixel_angle[1])
-    labels, k = _link_labels(np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64),
-                             np.asarray(xyz, dtype=np.float32), np.asarray(range_m, dtype=np.float32), grid[0],
-                             grid[1], wrap, offsets, spacing, link_m, link_spacing)
+    labels, k = _link_labels(rows, cols, xyz, range_m, grid[0], grid[1], wrap, offsets, spacing, link_m, link_spacing)
     return labels, int(k)
 
 
