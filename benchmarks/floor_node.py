@@ -24,7 +24,7 @@ from sensor_msgs.msg import PointCloud2
 from lip_msgs_py.cdr import cdr_stamp
 from lip_msgs_py.stamps import NS_PER_S
 from lip_ros.lip.sensors import LIDAR_TOPIC
-from lip_ros.middleware import use_lip_dds_profile
+from lip_ros.middleware import keep_message_buffers, use_lip_dds_profile
 
 __all__ = ["FLOOR_TOPIC", "main"]
 
@@ -34,6 +34,7 @@ FLOOR_TOPIC = "/bench/floor_pose"
 
 def main() -> int:
     """Pass clouds through until SIGINT."""
+    keep_message_buffers()  # as the graph's executables: a cloud's copies reuse the last one's memory
     use_lip_dds_profile()
     rclpy.init(args=sys.argv)
     node = rclpy.create_node("floor_node")

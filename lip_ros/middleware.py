@@ -1,4 +1,5 @@
-"""DDS settings shared by the package's executables: the Fast DDS profile for large point clouds.
+"""Process settings shared by the package's executables for large point clouds: the Fast DDS profile, and
+the C heap's reuse of message buffers.
 
 Under Fast DDS's defaults a 12.6 MB Ouster cloud sent best effort between
 processes does not arrive: its ~200 fragments do not fit the default 512 kB
@@ -14,10 +15,22 @@ A process that ends without closing its participants (killed, or crashed) leaves
 its shared-memory segments in ``/dev/shm`` (``fastrtps_*``, 128 MB each with this
 profile), and Fast DDS does not reclaim them: :func:`remove_stale_shm` does
 (the test session calls it at its end; ``make clean-shm`` too).
+
+A 2048-column cloud is 12.6 MB, and taking one from DDS into Python allocates
+it three times over (Fast DDS's copy, rcl's serialized message, Python's
+bytes). Under glibc's default malloc options those blocks are either mapped
+afresh or given back to the kernel once freed (the heap's free top beyond
+twice the largest block freed), so every cloud faulted its ~9000 pages in
+again: measured with ``perf`` on ``benchmarks/floor_node.py``, a third of its
+CPU was the kernel zeroing pages, 27 ms a 2048-column cloud. The executables
+call :func:`keep_message_buffers` first, so those blocks come from the heap
+and stay there for the next message (docs/reliability.md "A floor that paid
+for page faults").
 """
 
 from __future__ import annotations
 
+import ctypes
 import fcntl
 import os
 import time
@@ -26,11 +39,38 @@ from pathlib import Path
 
 from lip_ros.resources import params_path
 
-__all__ = ["PROFILE_ENV", "PROFILE_FILE", "use_lip_dds_profile", "remove_stale_shm"]
+__all__ = ["MESSAGE_BLOCK_BYTES", "KEPT_FREE_BYTES", "PROFILE_ENV", "PROFILE_FILE", "keep_message_buffers",
+           "use_lip_dds_profile", "remove_stale_shm"]
 
 PROFILE_FILE = "fastdds_lip.xml"
 PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"  # Fast DDS 2.x (ROS 2 Jazzy)
 _USER_CHOICE_ENVS = (PROFILE_ENV, "FASTDDS_DEFAULT_PROFILES_FILE")  # the latter: Fast DDS 3 spelling
+
+#: Blocks up to this size come from malloc's heap, not a mapping of their own (glibc's largest
+#: ``M_MMAP_THRESHOLD`` on 64 bits; a 2048-column cloud is 12.6 MB).
+MESSAGE_BLOCK_BYTES = 32 << 20
+#: Free memory at the top of a heap kept for the next messages rather than given back (``M_TRIM_THRESHOLD``): a
+#: few clouds' copies at once.
+KEPT_FREE_BYTES = 128 << 20
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's malloc.h
+#: Environment variables with which a user sets glibc's malloc options themselves (left alone).
+_MALLOC_CHOICE_ENVS = ("MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TOP_PAD_", "MALLOC_MMAP_MAX_")
+
+
+def keep_message_buffers(environ: MutableMapping[str, str] | None = None) -> bool:
+    """Let glibc's malloc reuse freed message-sized blocks (:data:`MESSAGE_BLOCK_BYTES`) instead of mapping and
+    faulting them in again for every large message; whether it was set (False: not glibc, or the user set malloc's
+    options in the environment, or glibc's tunables). The process keeps up to :data:`KEPT_FREE_BYTES` of freed
+    memory per malloc arena. Call once, early (it applies to blocks allocated afterwards)."""
+    env = os.environ if environ is None else environ
+    if any(name in env for name in _MALLOC_CHOICE_ENVS) or "malloc." in env.get("GLIBC_TUNABLES", ""):
+        return False
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc (musl has no mallopt; macOS's malloc has its own)
+        return False
+    mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
+    return bool(mallopt(_M_MMAP_THRESHOLD, MESSAGE_BLOCK_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, KEPT_FREE_BYTES))
 
 
 def use_lip_dds_profile(environ: MutableMapping[str, str] | None = None) -> Path | None:

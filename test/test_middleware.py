@@ -1,10 +1,22 @@
-"""The shipped Fast DDS profile: chosen by default, never over the user's choice, loopback-neutral."""
+"""The shipped Fast DDS profile: chosen by default, never over the user's choice, loopback-neutral; message-sized
+blocks reused by malloc."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import xml.etree.ElementTree as ET
 
-from lip_ros.middleware import PROFILE_ENV, PROFILE_FILE, remove_stale_shm, use_lip_dds_profile
+import pytest
+
+from lip_ros.middleware import (
+    PROFILE_ENV,
+    PROFILE_FILE,
+    keep_message_buffers,
+    remove_stale_shm,
+    use_lip_dds_profile,
+)
 from lip_ros.resources import params_path
 
 NS = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
@@ -68,3 +80,47 @@ def test_stale_shared_memory_is_removed_and_memory_in_use_is_not(tmp_path) -> No
                                                "fastrtps_port7001_el", "sem.fastrtps_port7001_mutex"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fastrtps_live", "fastrtps_live_el", "fastrtps_new",
                                                           "fastrtps_new_el"]
+
+
+#: A fresh interpreter allocates three 12.6 MB blocks at once (a 2048-column cloud taken from DDS into Python),
+#: touches them and frees them, eleven times over, with or without :func:`keep_message_buffers` first; it prints
+#: the page faults of the last ten rounds per round, and the pages of a round.
+_FAULTS_SCRIPT = """
+import sys
+from lip_ros.middleware import keep_message_buffers
+if sys.argv[1] == "keep":
+    assert keep_message_buffers()
+def faults():
+    return int(open("/proc/self/stat").read().rsplit(")", 1)[1].split()[7])
+def round_of_clouds(n=12_600_000):
+    blocks = [bytearray(n) for _ in range(3)]
+    for b in blocks:
+        b[::4096] = b"\\x01" * len(range(0, n, 4096))  # a write to every page
+round_of_clouds()
+before = faults()
+for _ in range(10):
+    round_of_clouds()
+print((faults() - before) / 10, 3 * 12_600_000 // 4096)
+"""
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/stat") or not hasattr(os, "confstr")
+                    or "glibc" not in (os.confstr("CS_GNU_LIBC_VERSION") or ""), reason="glibc on Linux only")
+def test_message_sized_blocks_are_reused_not_faulted_in_again() -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
+
+    def faults_per_round(mode: str) -> tuple[float, int]:
+        out = subprocess.run([sys.executable, "-c", _FAULTS_SCRIPT, mode], env=env, capture_output=True, text=True,
+                             check=True, timeout=60).stdout.split()
+        return float(out[0]), int(out[1])
+
+    faulted, pages = faults_per_round("default")
+    assert faulted > 0.9 * pages  # glibc's defaults: every round maps and zeroes its blocks again
+    kept, _ = faults_per_round("keep")
+    assert kept < 0.01 * pages
+
+
+def test_malloc_options_the_user_set_are_left_alone() -> None:
+    for env in ({"MALLOC_TRIM_THRESHOLD_": "1000000"}, {"MALLOC_MMAP_THRESHOLD_": "65536"},
+                {"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=1000000"}):
+        assert keep_message_buffers(env) is False

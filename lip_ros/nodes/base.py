@@ -57,7 +57,7 @@ from lip_msgs_py import (
 from lip_msgs_py.cdr import imu_samples
 from lip_ros.core.clock import SteppingClock
 from lip_ros.core.sensor_monitor import SensorMonitor
-from lip_ros.middleware import use_lip_dds_profile
+from lip_ros.middleware import keep_message_buffers, use_lip_dds_profile
 from lip_ros.resources import params_path
 from lip_ros.signals import stop_on_signals
 
@@ -618,6 +618,7 @@ def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], Grap
                                             "--params-file FILE, -p use_sim_time:=true).")
     parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
     stop = stop_on_signals()
+    keep_message_buffers()
     use_lip_dds_profile()
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[GraphNode] = []

@@ -12,7 +12,7 @@ from typing import NoReturn
 import rclpy
 from rclpy.signals import SignalHandlerOptions
 
-from lip_ros.middleware import use_lip_dds_profile
+from lip_ros.middleware import keep_message_buffers, use_lip_dds_profile
 from lip_ros.signals import stop_on_signals
 
 __all__ = ["ToolError", "ArgumentParser", "tool_args", "start_ros", "stop_on_signals", "run_tool", "Progress",
@@ -44,7 +44,9 @@ def installed_script(name: str) -> str:
 
 
 def start_ros(argv: list[str]) -> None:
-    """``rclpy.init`` with the package's DDS profile, leaving SIGINT and SIGTERM to :func:`stop_on_signals`."""
+    """``rclpy.init`` with the package's DDS profile and message buffers kept (:mod:`lip_ros.middleware`), leaving
+    SIGINT and SIGTERM to :func:`stop_on_signals`."""
+    keep_message_buffers()
     use_lip_dds_profile()
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
 
