@@ -39,8 +39,9 @@ def _subscriber(args: argparse.Namespace) -> None:
     from std_msgs.msg import UInt32
 
     from lip_msgs_py import read_header
-    from lip_ros.middleware import use_lip_dds_profile
+    from lip_ros.middleware import keep_message_buffers, use_lip_dds_profile
 
+    keep_message_buffers()  # as the package's executables
     use_lip_dds_profile()
     rclpy.init()
     node = rclpy.create_node("bench_dds_clouds_sub")
@@ -72,8 +73,9 @@ def _publisher(args: argparse.Namespace) -> None:
     from std_msgs.msg import UInt32
 
     from lip_msgs_py import RclpyBackend, array_to_cloud, ns_to_sec_nanosec
-    from lip_ros.middleware import use_lip_dds_profile
+    from lip_ros.middleware import keep_message_buffers, use_lip_dds_profile
 
+    keep_message_buffers()  # as the package's executables
     use_lip_dds_profile()
     rclpy.init()
     node = rclpy.create_node("bench_dds_clouds_pub")

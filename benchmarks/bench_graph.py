@@ -75,7 +75,7 @@ from rosgraph_msgs.msg import Clock
 from lip_msgs_py import Diagnostic, msg_to_diagnostics, read_header, stamp_to_ns
 from lip_ros.bagio import bag_span, bag_topics, read_messages
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
-from lip_ros.middleware import use_lip_dds_profile
+from lip_ros.middleware import keep_message_buffers, use_lip_dds_profile
 from lip_ros.tools.bag_play import CLOCK_QOS, CLOCK_TOPIC
 from lip_ros.tools.ros_cli import Progress, installed_script
 
@@ -583,7 +583,8 @@ def main() -> None:
                              capture_output=True, text=True).stdout.strip()
     header = (f"lip_ros {version or '(not a git checkout)'}, ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, "
               f"discovery {os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']}, {os.cpu_count()} cores, "
-              f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} at start")
+              f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} at start, message buffers "
+              f"{'kept' if keep_message_buffers() else 'NOT kept (malloc options set by the user, or not glibc)'}")
     with tempfile.TemporaryDirectory(prefix="bench_graph_") as tmp:
         work = Path(tmp)
         if args.mode == "process-bag":

@@ -34,7 +34,9 @@ FLOOR_TOPIC = "/bench/floor_pose"
 
 def main() -> int:
     """Pass clouds through until SIGINT."""
-    keep_message_buffers()  # as the graph's executables: a cloud's copies reuse the last one's memory
+    if not keep_message_buffers():  # as the graph's executables: a cloud's copies reuse the last one's memory
+        print("floor_node: message buffers not kept (malloc options set by the user, or not glibc): the floor "
+              "pays for page faults the graph may not", file=sys.stderr)
     use_lip_dds_profile()
     rclpy.init(args=sys.argv)
     node = rclpy.create_node("floor_node")

@@ -21,11 +21,12 @@ it three times over (Fast DDS's copy, rcl's serialized message, Python's
 bytes). Under glibc's default malloc options those blocks are either mapped
 afresh or given back to the kernel once freed (the heap's free top beyond
 twice the largest block freed), so every cloud faulted its ~9000 pages in
-again: measured with ``perf`` on ``benchmarks/floor_node.py``, a third of its
-CPU was the kernel zeroing pages, 27 ms a 2048-column cloud. The executables
-call :func:`keep_message_buffers` first, so those blocks come from the heap
-and stay there for the next message (docs/reliability.md "A floor that paid
-for page faults").
+again: ``benchmarks/floor_node.py``, a pass-through, took 27-29 % of a core
+at 2048 columns and 10 Hz, a third of it (``perf``) the kernel zeroing pages
+and more faulting them in; 6-7 % with the blocks kept. The executables call
+:func:`keep_message_buffers` first, so those blocks come from the heap and
+stay there for the next message (docs/reliability.md "A floor that paid for
+page faults").
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import ctypes
 import fcntl
 import os
 import time
-from collections.abc import MutableMapping
+from collections.abc import Mapping, MutableMapping
 from pathlib import Path
 
 from lip_ros.resources import params_path
@@ -46,31 +47,37 @@ PROFILE_FILE = "fastdds_lip.xml"
 PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"  # Fast DDS 2.x (ROS 2 Jazzy)
 _USER_CHOICE_ENVS = (PROFILE_ENV, "FASTDDS_DEFAULT_PROFILES_FILE")  # the latter: Fast DDS 3 spelling
 
-#: Blocks up to this size come from malloc's heap, not a mapping of their own (glibc's largest
-#: ``M_MMAP_THRESHOLD`` on 64 bits; a 2048-column cloud is 12.6 MB).
+#: Blocks smaller than this come from malloc's heap, not a mapping of their own (``M_MMAP_THRESHOLD``; the largest
+#: value older glibc versions accept on 64 bits; a 2048-column cloud is 12.6 MB).
 MESSAGE_BLOCK_BYTES = 32 << 20
-#: Free memory at the top of a heap kept for the next messages rather than given back (``M_TRIM_THRESHOLD``): a
-#: few clouds' copies at once.
+#: Free memory at the top of the main heap kept for the next messages rather than given back
+#: (``M_TRIM_THRESHOLD``): a few clouds' copies at once. A thread's arena grows in heaps of at most 64 MB, and
+#: glibc unmaps one that empties whatever this says: about five copies of a 2048-column cloud kept there.
 KEPT_FREE_BYTES = 128 << 20
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's malloc.h
-#: Environment variables with which a user sets glibc's malloc options themselves (left alone).
-_MALLOC_CHOICE_ENVS = ("MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TOP_PAD_", "MALLOC_MMAP_MAX_")
+#: glibc's malloc options a user may set in the environment (``MALLOC_<NAME>_``) or in ``GLIBC_TUNABLES``
+#: (``glibc.malloc.<name>``): any of them set, the user's choice is left alone.
+_MALLOC_OPTIONS = ("trim_threshold", "mmap_threshold", "top_pad", "mmap_max")
 
 
-def keep_message_buffers(environ: MutableMapping[str, str] | None = None) -> bool:
+def keep_message_buffers(environ: Mapping[str, str] | None = None) -> bool:
     """Let glibc's malloc reuse freed message-sized blocks (:data:`MESSAGE_BLOCK_BYTES`) instead of mapping and
     faulting them in again for every large message; whether it was set (False: not glibc, or the user set malloc's
-    options in the environment, or glibc's tunables). The process keeps up to :data:`KEPT_FREE_BYTES` of freed
-    memory per malloc arena. Call once, early (it applies to blocks allocated afterwards)."""
+    trim or mmap threshold, top pad or mmap maximum in the environment, as ``MALLOC_<NAME>_`` or in
+    ``GLIBC_TUNABLES``). Up to :data:`KEPT_FREE_BYTES` of freed memory stays with the
+    process. Call once, early (it applies to blocks allocated and freed afterwards)."""
     env = os.environ if environ is None else environ
-    if any(name in env for name in _MALLOC_CHOICE_ENVS) or "malloc." in env.get("GLIBC_TUNABLES", ""):
+    tunables = {t.split("=", 1)[0].strip() for t in env.get("GLIBC_TUNABLES", "").split(":")}
+    if any(f"MALLOC_{o.upper()}_" in env or f"glibc.malloc.{o}" in tunables for o in _MALLOC_OPTIONS):
         return False
     try:
         mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):  # not glibc (musl has no mallopt; macOS's malloc has its own)
+    except (OSError, AttributeError):  # no mallopt (macOS: its malloc has options of its own); musl's returns 0
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    return bool(mallopt(_M_MMAP_THRESHOLD, MESSAGE_BLOCK_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, KEPT_FREE_BYTES))
+    mapped = mallopt(_M_MMAP_THRESHOLD, MESSAGE_BLOCK_BYTES)
+    trimmed = mallopt(_M_TRIM_THRESHOLD, KEPT_FREE_BYTES)
+    return bool(mapped and trimmed)
 
 
 def use_lip_dds_profile(environ: MutableMapping[str, str] | None = None) -> Path | None:

@@ -617,8 +617,8 @@ def run_nodes(prog: str, description: str, factories: Sequence[Callable[[], Grap
                                      epilog="ROS arguments go after --ros-args (remapping, -p name:=value, "
                                             "--params-file FILE, -p use_sim_time:=true).")
     parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
-    stop = stop_on_signals()
     keep_message_buffers()
+    stop = stop_on_signals()
     use_lip_dds_profile()
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[GraphNode] = []
