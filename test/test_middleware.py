@@ -119,7 +119,7 @@ print(*per_round, 3 * -(-12_600_000 // page))
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc",
-                    reason="glibc's malloc on Linux only")
+                    reason="mallopt and the page-fault count of /proc/self/stat exist only with glibc on Linux")
 def test_message_sized_blocks_are_reused_not_faulted_in_again() -> None:
     env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
 
