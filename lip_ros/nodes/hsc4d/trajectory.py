@@ -16,7 +16,7 @@ the live odometry), which goes out every ``map_period_s`` on ``/hsc4d/map``
 (reliable, transient local).
 
 The sweeps held until the jump are registered with each new sweep for at most
-half a LiDAR period (not in one long callback, during which the suit's samples
+0.3 of a LiDAR period (``_CATCH_UP_SHARE``; not in one long callback, during which the suit's samples
 would overflow their queues); a sweep waits (at most ``suit_wait_s`` after it arrived) until the
 suit's samples cover it, so that its deskew and initial guess have the suit's
 motion whatever order the transport delivers in (and the pelvis samples within
