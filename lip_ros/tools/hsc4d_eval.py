@@ -1,6 +1,6 @@
 """hsc4d_eval: the HSC4D trajectory on rig captures against the truth and the paper's baselines.
 
-  hsc4d_eval --seeds 1000 1001 1002 --seconds 90 --out DIR [--columns 1024] [--rate 10]
+  hsc4d_eval --seeds 1000 1001 1002 --seconds 90 [--out DIR] [--columns 1024] [--rate 10]
       [--max-registration-hz 10] [--pinned-information 0.01 0.03] [--pinned-tilt-information 0.01 0.05]
 
 Each capture is simulated and played through the live pipeline in arrival
@@ -162,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the bodies' foot lock (live graph, live optimised, refined): a foot stands below this "
                              "speed of the suit's own, held within this distance of the body's")
     parser.add_argument("--no-foot-lock", action="store_true", help="the bodies' standing feet not held")
-    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--out", type=Path, default=Path("out/hsc4d_eval"),
+                        help="metrics.json and the plots go here (as lip_eval run's out/eval)")
     args = parser.parse_args(argv)
     try:
         foot_lock = None if args.no_foot_lock else replace(FOOT_LOCK, stance_speed_mps=args.foot_lock[0],
