@@ -1,13 +1,14 @@
 """How well the LIP pipeline estimates each DOT's latency online, by distance: rig captures, DOTs late or on time.
 
 For each distance, ``--seeds`` rig captures (``--scenario``, default a walk; ``--columns``, default 1024; DOTs
-stamped 20-60 ms late with 5 ms of jitter, as ``test/lip/test_dot_latency.py``'s, or on time with ``--on-time``)
-are recorded to ``--bag-dir`` (kept and reused) and run through :class:`lip_ros.lip.pipeline.LipPipeline`; per DOT,
+stamped 20-60 ms late with 5 ms of jitter, as ``test/lip/test_dot_latency.py``'s, or on time with ``--on-time``) are
+recorded to ``--bag-dir`` (kept and reused) and run through :class:`lip_ros.lip.pipeline.LipPipeline`; per DOT,
 against its true mean delay (``CaptureSession.dot_delays_ms``): the first estimate (its error, and how many frames
-had been posed when it came), every estimate taken over the capture (how many were more than ``WRONG_MS`` off), and
-the estimate at the end of the bag. Prints each capture's estimates and, per distance, how many of the DOTs had an
-estimate, the errors of the first and last ones, the wrong ones, and the error of what was taken off at the end (an
-estimate, or the configured 0 ms where there is none). Run:
+had come out of the pipeline when it came, the calibration's and skipped ones included), every new estimate over the
+capture (each change; how many were more than ``WRONG_MS`` off), and the estimate at the end of the bag. Prints each
+capture's estimates and, per distance, how many of the DOTs had an estimate, the errors of the first and last ones,
+the wrong ones, and the error of what was taken off at the end (an estimate, or the configured 0 ms where there is
+none). Run:
 ``python benchmarks/bench_dot_latency.py --distances 7 12 16 --seeds 10 [--seconds 20] [--on-time]
 [--scenario mixed]``.
 """
@@ -51,15 +52,22 @@ def _capture(args: argparse.Namespace, seed: int, distance_m: float, bag_dir: Pa
 
 
 def _estimates(pipeline: LipPipeline, bag: Path) -> dict[str, list[tuple[int, float]]]:
-    """Per DOT, every new latency estimate over the bag: (frames out before it, estimate ms)."""
+    """Per DOT, every new latency estimate over the bag: (frames out before it, estimate ms); one taken as the bag
+    ended, after its last frame came out, too."""
     estimator = pipeline.imu.latency
     seen = dict.fromkeys(estimator.estimate_ns)
     found: dict[str, list[tuple[int, float]]] = {name: [] for name in seen}
-    for frames, _ in enumerate(process_bag_batch(pipeline, bag)):
+
+    def look(frames: int) -> None:
         for name, estimate in estimator.estimate_ns.items():
             if estimate != seen[name]:
                 seen[name] = estimate
                 found[name].append((frames, estimate * 1e-6))
+
+    frames = 0
+    for frames, _ in enumerate(process_bag_batch(pipeline, bag), start=1):
+        look(frames - 1)
+    look(frames)
     return found
 
 
