@@ -81,11 +81,16 @@ class SensorMonitor:
     _last_stamp_ns: int | None = None
     _last_arrival: float | None = None
     _clock_steps: int = 0
+    _silent: bool = False  # said silent by silence_change, and not said back since
+    _silent_for_s: float | None = None  # receive time from the last message before a silence to the first after
 
     def accept(self, now_s: float, stamp_ns: int) -> None:
         """Count a valid message with measurement stamp ``stamp_ns`` received at ``now_s``."""
         self._received += 1
         self._accepted += 1
+        if self._silent and self._silent_for_s is None:
+            gap = now_s - self._last_arrival if self._last_arrival is not None else -1.0
+            self._silent_for_s = gap if gap >= 0.0 else float("nan")  # NaN: the receive clock went back
         step = -stepped_back(stamp_ns, self._last_stamp_ns)
         if not step and self._last_stamp_ns is not None and self._last_arrival is not None:
             ahead = (stamp_ns - self._last_stamp_ns) - round((now_s - self._last_arrival) * 1e9)
@@ -141,6 +146,11 @@ class SensorMonitor:
         return len(self._arrivals) / self.window_s
 
     @property
+    def received(self) -> int:
+        """Messages received since start, valid or not."""
+        return self._received
+
+    @property
     def measured_rate_hz(self) -> float:
         """The rate of the stamps (a sensor stamping each period, ``count_missing``), the expected rate until it
         is known or without ``count_missing``."""
@@ -150,6 +160,22 @@ class SensorMonitor:
         """Median of receive time less stamp over the latest messages (None without any): transport and driver
         delay, plus any offset between the sensor's clock and the receive clock."""
         return float(np.median(self._delays)) if self._delays else None
+
+    def silence_change(self, now_s: float) -> tuple[bool, float] | None:
+        """A change in the sensor's silence, said once: ``(True, s)`` when a sensor that sent valid messages has sent
+        none for more than ``stale_after_s`` (``s``: since its last), ``(False, s)`` when it sends one again after
+        such a silence (``s``: how long it lasted; NaN across a reset of the receive clock); None otherwise."""
+        self._trim(now_s)
+        if self._last_arrival is None:
+            return None
+        age = now_s - self._last_arrival
+        if not self._silent and age > self.stale_after_s:
+            self._silent, self._silent_for_s = True, None
+            return True, age
+        if self._silent and self._silent_for_s is not None:
+            self._silent, lasted, self._silent_for_s = False, self._silent_for_s, None
+            return False, lasted
+        return None
 
     def report(self, now_s: float) -> SensorReport:
         """The sensor's health now."""

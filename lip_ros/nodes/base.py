@@ -13,7 +13,10 @@ one status per monitored input (rate, age, rejections) and one
 ``<node>: frames`` status. Its values named ``frames <what>`` count LiDAR
 frames that ended in this node (skipped with the reason, calibrating, pose),
 so that summed over the graph's nodes every input frame is counted exactly
-once; other values (pending, latency) are named otherwise.
+once; other values (pending, latency) are named otherwise. The log says when an
+input falls silent (no valid message for ``stale_after_s``: WARN) and when it
+comes back (INFO, with how long it was silent), and once of each input that
+has received nothing :data:`NO_MESSAGE_LOG_S` after the node started.
 """
 
 from __future__ import annotations
@@ -78,6 +81,8 @@ BETWEEN_NODES = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: SensorDataQoS (best effort) for the 60 Hz IMUs, with room for the samples that arrive while a frame is processed.
 IMU_INPUT = QoSProfile(depth=50, reliability=qos_profile_sensor_data.reliability,
                        durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
+#: seconds (steady time) after a node's start at which each input that has received nothing yet is logged, once
+NO_MESSAGE_LOG_S = 10.0
 #: how often a node takes the messages of its polled inputs (:meth:`GraphNode.add_input`, ``polled``) and looks at
 #: what waits on them, seconds (steady time)
 POLL_PERIOD_S = 0.02
@@ -338,6 +343,8 @@ class GraphNode(Node):
         self._polled: list[str] = []  # the inputs no executor waits on (:meth:`take_polled`)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)  # also ticks while a bag's /clock is paused or over
+        self._started_ns = self.steady.now().nanoseconds
+        self._said_waiting: set[str] = set()  # the inputs whose "no message yet" was logged
         self.create_timer(self.params["diagnostics_period_s"], self._on_diagnostics_timer, self.group,
                           clock=self.steady)
 
@@ -507,6 +514,7 @@ class GraphNode(Node):
         self._check_topic_types()
         now = self.now_ns()
         statuses = []
+        self._log_silences(now * 1e-9)
         for topic, _, monitor in self._inputs.values():
             r = monitor.report(now * 1e-9)
             values = {"rate_hz": f"{r.rate_hz:.2f}", "received": r.received, "accepted": r.accepted,
@@ -529,6 +537,31 @@ class GraphNode(Node):
         statuses.append(diagnostic_status_to_msg(self.backend, int(level), f"{self.get_name()}: frames", message,
                                                  values=values))
         self._diag_pub.publish(diagnostic_array_to_msg(self.backend, now, statuses))
+
+
+    def _log_silences(self, now_s: float) -> None:
+        """Log each input that fell silent (WARN) or came back (INFO) since the last report, and once each input
+        that has received nothing :data:`NO_MESSAGE_LOG_S` after the node started."""
+        silent, back, waiting = [], [], []
+        waited_s = (self.steady.now().nanoseconds - self._started_ns) * 1e-9
+        for name, (topic, _, monitor) in self._inputs.items():
+            change = monitor.silence_change(now_s)
+            if change is not None:
+                (silent if change[0] else back).append(f"{name} ({topic}) {_seconds(change[1])}")
+            elif monitor.received == 0 and waited_s > NO_MESSAGE_LOG_S and name not in self._said_waiting:
+                self._said_waiting.add(name)
+                waiting.append(f"{name} ({topic})")
+        if silent:
+            self.get_logger().warning("no valid message for: " + ", ".join(silent))
+        if back:
+            self.get_logger().info("receiving again after a silence of: " + ", ".join(back))
+        if waiting:
+            self.get_logger().info(f"no message in the {waited_s:.0f} s since start on: {', '.join(waiting)} (its "
+                                   "publisher not running, or not reachable over DDS)")
+
+
+def _seconds(s: float) -> str:
+    return "(across a reset of the clock)" if s != s else f"{s:.1f} s"
 
 
 def read_imu(data: bytes) -> ImuSample:

@@ -31,6 +31,30 @@ def test_rate_ok_then_stale_then_recovers() -> None:
     assert m.report(7.0).health == DiagnosticLevel.OK
 
 
+def test_a_silence_is_said_once_when_it_starts_and_once_when_it_ends_with_its_length() -> None:
+    m = SensorMonitor("imu", 60.0, stale_after_s=0.5)
+    assert m.silence_change(5.0) is None  # nothing received yet: not a silence (the node says so itself)
+    t = feed(m, 0.0, 3.0, 60.0)
+    last = t - 1.0 / 60.0
+    assert m.silence_change(3.0) is None and m.silence_change(last + 0.5) is None
+    change = m.silence_change(3.7)
+    assert change is not None and change[0] and change[1] == pytest.approx(3.7 - last)
+    assert m.silence_change(4.5) is None  # said once
+    feed(m, 5.0, 5.2, 60.0)  # several messages before the next look: the silence is the first one's gap
+    change = m.silence_change(5.2)
+    assert change is not None and not change[0] and change[1] == pytest.approx(5.0 - last)
+    assert m.silence_change(5.3) is None
+
+
+def test_a_silence_across_a_reset_of_the_receive_clock_ends_without_a_length() -> None:
+    m = SensorMonitor("imu", 60.0, stale_after_s=0.5)
+    feed(m, 100.0, 101.0, 60.0)
+    assert m.silence_change(102.0)[0]
+    feed(m, 10.0, 10.1, 60.0, stamp0=10**12)  # a bag played again
+    change = m.silence_change(10.1)
+    assert change is not None and not change[0] and change[1] != change[1]
+
+
 def test_low_rate_warns() -> None:
     m = SensorMonitor("lidar", 10.0)
     feed(m, 0.0, 3.0, 3.0)
