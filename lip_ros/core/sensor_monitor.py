@@ -14,9 +14,11 @@ at 20 Hz where 10 was configured).
 
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Literal, NamedTuple
 
 import numpy as np
 
@@ -24,7 +26,7 @@ from lip_msgs_py.diagnostics import DiagnosticLevel
 from lip_ros.core.clock import CLOCK_STEP_NS, stepped_back
 from lip_ros.core.frame_period import FramePeriod
 
-__all__ = ["SensorReport", "SensorMonitor", "odd_delays"]
+__all__ = ["SensorReport", "SilenceChange", "SensorMonitor", "odd_delays"]
 
 #: how many of the latest messages the delay is the median of (a tenth of a second of 60 Hz IMU data, a second of
 #: 10 Hz LiDAR frames)
@@ -51,13 +53,22 @@ class SensorReport:
     missing: int = 0  # messages missing from gaps in the stamps, since start (with count_missing)
 
 
+class SilenceChange(NamedTuple):
+    """A sensor falling silent or sending again (:meth:`SensorMonitor.silence_change`)."""
+
+    kind: Literal["silent", "back", "was_silent"]
+    seconds: float  # silent: since its last message; back, was_silent: how long the silence lasted (NaN: unknown)
+
+
 @dataclass
 class SensorMonitor:
     """Health of one input stream.
 
     ``expected_rate_hz`` sets the warning threshold (below half of it: WARN);
     ``stale_after_s`` without an accepted message makes the sensor STALE.
-    Times are receive times in seconds on any monotonic clock.
+    Times are receive times in seconds on any monotonic clock; 0 is taken for no
+    time in the silences (:meth:`silence_change`): a node on ``/clock`` before its
+    first tick.
     """
 
     name: str
@@ -82,15 +93,20 @@ class SensorMonitor:
     _last_arrival: float | None = None
     _clock_steps: int = 0
     _silent: bool = False  # said silent by silence_change, and not said back since
-    _silent_for_s: float | None = None  # receive time from the last message before a silence to the first after
+    _silence_lasted_s: float | None = None  # receive time from the last message before a silence to the first after
+    _unseen_silence_s: float | None = None  # a silence that began and ended between two looks, how long
 
     def accept(self, now_s: float, stamp_ns: int) -> None:
         """Count a valid message with measurement stamp ``stamp_ns`` received at ``now_s``."""
         self._received += 1
         self._accepted += 1
-        if self._silent and self._silent_for_s is None:
-            gap = now_s - self._last_arrival if self._last_arrival is not None else -1.0
-            self._silent_for_s = gap if gap >= 0.0 else float("nan")  # NaN: the receive clock went back
+        # receive time 0 is no time: a node on /clock before its first message
+        gap = now_s - self._last_arrival if self._last_arrival else None
+        if self._silent:
+            if self._silence_lasted_s is None:
+                self._silence_lasted_s = gap if gap is not None and gap >= 0.0 else math.nan  # the clock went back
+        elif gap is not None and gap > self.stale_after_s:
+            self._unseen_silence_s = gap
         step = -stepped_back(stamp_ns, self._last_stamp_ns)
         if not step and self._last_stamp_ns is not None and self._last_arrival is not None:
             ahead = (stamp_ns - self._last_stamp_ns) - round((now_s - self._last_arrival) * 1e9)
@@ -161,20 +177,25 @@ class SensorMonitor:
         delay, plus any offset between the sensor's clock and the receive clock."""
         return float(np.median(self._delays)) if self._delays else None
 
-    def silence_change(self, now_s: float) -> tuple[bool, float] | None:
-        """A change in the sensor's silence, said once: ``(True, s)`` when a sensor that sent valid messages has sent
-        none for more than ``stale_after_s`` (``s``: since its last), ``(False, s)`` when it sends one again after
-        such a silence (``s``: how long it lasted; NaN across a reset of the receive clock); None otherwise."""
+    def silence_change(self, now_s: float) -> SilenceChange | None:
+        """A change in the sensor's silence since the last call, each said once (:class:`SilenceChange`): a sensor
+        that sent valid messages has sent none for more than ``stale_after_s`` (``silent``, seconds since its last
+        message), sends again after such a silence (``back``, how long it lasted: from its last message before to
+        its first after; NaN across a reset of the receive clock), or did both since the last call (``was_silent``,
+        how long); None otherwise."""
         self._trim(now_s)
-        if self._last_arrival is None:
+        if self._unseen_silence_s is not None:
+            lasted, self._unseen_silence_s = self._unseen_silence_s, None
+            return SilenceChange("was_silent", lasted)
+        if not self._last_arrival:  # none yet, the receive clock went back, or receive time 0 (no time)
             return None
         age = now_s - self._last_arrival
         if not self._silent and age > self.stale_after_s:
-            self._silent, self._silent_for_s = True, None
-            return True, age
-        if self._silent and self._silent_for_s is not None:
-            self._silent, lasted, self._silent_for_s = False, self._silent_for_s, None
-            return False, lasted
+            self._silent, self._silence_lasted_s = True, None
+            return SilenceChange("silent", age)
+        if self._silent and self._silence_lasted_s is not None:
+            self._silent, lasted, self._silence_lasted_s = False, self._silence_lasted_s, None
+            return SilenceChange("back", lasted)
         return None
 
     def report(self, now_s: float) -> SensorReport:

@@ -13,15 +13,16 @@ one status per monitored input (rate, age, rejections) and one
 ``<node>: frames`` status. Its values named ``frames <what>`` count LiDAR
 frames that ended in this node (skipped with the reason, calibrating, pose),
 so that summed over the graph's nodes every input frame is counted exactly
-once; other values (pending, latency) are named otherwise. The log says when an
-input falls silent (no valid message for ``stale_after_s``: WARN) and when it
-comes back (INFO, with how long it was silent), and once of each input that
-has received nothing :data:`NO_MESSAGE_LOG_S` after the node started.
+once; other values (pending, latency) are named otherwise. The log says when a
+sensor input falls silent (no valid message for ``stale_after_s``: WARN) and
+when it comes back (INFO, with how long it was silent), and once for each that
+has received nothing :data:`NO_MESSAGE_LOG_S` after the node started (WARN).
 """
 
 from __future__ import annotations
 
 import gc
+import math
 import re
 import sys
 import threading
@@ -344,7 +345,8 @@ class GraphNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)  # also ticks while a bag's /clock is paused or over
         self._started_ns = self.steady.now().nanoseconds
-        self._said_waiting: set[str] = set()  # the inputs whose "no message yet" was logged
+        self._watched: list[str] = []  # the inputs whose silences are logged (add_input's ``watched``)
+        self._waiting: set[str] = set()  # watched inputs logged as having received nothing since start
         self.create_timer(self.params["diagnostics_period_s"], self._on_diagnostics_timer, self.group,
                           clock=self.steady)
 
@@ -405,7 +407,8 @@ class GraphNode(Node):
 
     def add_input(self, name: str, topic: str, msg_type: type, rate_hz: float, handle: Callable[[Any], int],
                   qos: QoSProfile = qos_profile_sensor_data, raw: bool = False, polled: bool = False,
-                  stamped_at: float | None = None, count_missing: bool = False, from_graph: bool = False) -> None:
+                  stamped_at: float | None = None, count_missing: bool = False, from_graph: bool = False,
+                  watched: bool | None = None) -> None:
         """Subscribe ``handle`` (returns the message stamp, raises MalformedMessageError to reject) with a
         monitor of the input's rate, age and rejections on /diagnostics; with ``raw`` it gets the message's CDR
         bytes (a fast input decoded later, in batches). A ``polled`` input is not waited on by the executor: the
@@ -418,11 +421,15 @@ class GraphNode(Node):
         sensor stamps each message one period after the last (a LiDAR), so gaps in the stamps are lost messages.
         ``from_graph``: the input is another node's output (:meth:`create_between_publisher`, QoS
         :data:`BETWEEN_NODES`); in a composed graph (``local_topics``) of a node whose ``direct_inputs``
-        (:data:`DIRECT_INPUTS_PARAM`) is true it is handed over by a direct call."""
+        (:data:`DIRECT_INPUTS_PARAM`) is true it is handed over by a direct call. ``watched``: the log says
+        when the input falls silent and comes back (:meth:`_log_silences`; default: unless ``from_graph``, whose
+        silence follows that of the other node's inputs, or that node's own choice not to publish)."""
         max_delay = None if stamped_at is None else stamped_at + self.params["max_input_delay_s"]
         monitor = SensorMonitor(name, expected_rate_hz=rate_hz, stale_after_s=self.params["stale_after_s"],
                                 max_delay_s=max_delay, count_missing=count_missing)
         self._inputs[name] = (topic, msg_type, monitor)
+        if (not from_graph) if watched is None else watched:
+            self._watched.append(name)
 
         def callback(msg: Any) -> None:
             now = self.now_ns() * 1e-9
@@ -514,6 +521,7 @@ class GraphNode(Node):
         self._check_topic_types()
         now = self.now_ns()
         statuses = []
+        self.take_polled()  # what waits in the polled inputs' queues is not a silence
         self._log_silences(now * 1e-9)
         for topic, _, monitor in self._inputs.values():
             r = monitor.report(now * 1e-9)
@@ -538,30 +546,36 @@ class GraphNode(Node):
                                                  values=values))
         self._diag_pub.publish(diagnostic_array_to_msg(self.backend, now, statuses))
 
-
     def _log_silences(self, now_s: float) -> None:
-        """Log each input that fell silent (WARN) or came back (INFO) since the last report, and once each input
-        that has received nothing :data:`NO_MESSAGE_LOG_S` after the node started."""
-        silent, back, waiting = [], [], []
+        """Log the watched inputs (:meth:`add_input`) that fell silent (WARN), were silent between two reports
+        (WARN) or came back (INFO) since the last report; once each that has received nothing
+        :data:`NO_MESSAGE_LOG_S` after the node started (WARN), and its first message after that (INFO)."""
+        said: dict[str, list[str]] = {"silent": [], "was_silent": [], "back": [], "waiting": [], "first": []}
         waited_s = (self.steady.now().nanoseconds - self._started_ns) * 1e-9
-        for name, (topic, _, monitor) in self._inputs.items():
+        for name in self._watched:
+            topic, _, monitor = self._inputs[name]
             change = monitor.silence_change(now_s)
             if change is not None:
-                (silent if change[0] else back).append(f"{name} ({topic}) {_seconds(change[1])}")
-            elif monitor.received == 0 and waited_s > NO_MESSAGE_LOG_S and name not in self._said_waiting:
-                self._said_waiting.add(name)
-                waiting.append(f"{name} ({topic})")
-        if silent:
-            self.get_logger().warning("no valid message for: " + ", ".join(silent))
-        if back:
-            self.get_logger().info("receiving again after a silence of: " + ", ".join(back))
-        if waiting:
-            self.get_logger().info(f"no message in the {waited_s:.0f} s since start on: {', '.join(waiting)} (its "
-                                   "publisher not running, or not reachable over DDS)")
-
-
-def _seconds(s: float) -> str:
-    return "(across a reset of the clock)" if s != s else f"{s:.1f} s"
+                seconds = "(across a reset of the clock)" if math.isnan(change.seconds) else f"{change.seconds:.1f} s"
+                said[change.kind].append(f"{name} ({topic}) {seconds}")
+            if monitor.received == 0 and waited_s > NO_MESSAGE_LOG_S and name not in self._waiting:
+                self._waiting.add(name)
+                said["waiting"].append(f"{name} ({topic})")
+            elif monitor.received and name in self._waiting:
+                self._waiting.discard(name)
+                said["first"].append(f"{name} ({topic})")
+        log = self.get_logger()
+        if said["silent"]:
+            log.warning("no valid message for: " + ", ".join(said["silent"]))
+        if said["was_silent"]:
+            log.warning("silent since the last report for: " + ", ".join(said["was_silent"]))
+        if said["back"]:
+            log.info("receiving again after a silence of: " + ", ".join(said["back"]))
+        if said["waiting"]:
+            log.warning(f"no message in the {waited_s:.0f} s since start on: {', '.join(said['waiting'])} (its "
+                        "publisher not running, or not reachable over DDS)")
+        if said["first"]:
+            log.info(f"first message, {waited_s:.0f} s after start, on: " + ", ".join(said["first"]))
 
 
 def read_imu(data: bytes) -> ImuSample:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from lip_msgs_py import DiagnosticLevel
-from lip_ros.core.sensor_monitor import SensorMonitor
+from lip_ros.core.sensor_monitor import SensorMonitor, SilenceChange
 
 
 def feed(m: SensorMonitor, t0: float, t1: float, rate: float, stamp0: int = 0) -> float:
@@ -36,23 +38,44 @@ def test_a_silence_is_said_once_when_it_starts_and_once_when_it_ends_with_its_le
     assert m.silence_change(5.0) is None  # nothing received yet: not a silence (the node says so itself)
     t = feed(m, 0.0, 3.0, 60.0)
     last = t - 1.0 / 60.0
-    assert m.silence_change(3.0) is None and m.silence_change(last + 0.5) is None
-    change = m.silence_change(3.7)
-    assert change is not None and change[0] and change[1] == pytest.approx(3.7 - last)
+    assert m.silence_change(3.0) is None and m.silence_change(last + 0.49) is None
+    assert m.silence_change(3.7) == SilenceChange("silent", pytest.approx(3.7 - last))
     assert m.silence_change(4.5) is None  # said once
     feed(m, 5.0, 5.2, 60.0)  # several messages before the next look: the silence is the first one's gap
-    change = m.silence_change(5.2)
-    assert change is not None and not change[0] and change[1] == pytest.approx(5.0 - last)
+    assert m.silence_change(5.2) == SilenceChange("back", pytest.approx(5.0 - last))
     assert m.silence_change(5.3) is None
+    assert m.silence_change(6.0).kind == "silent"  # and again
+    feed(m, 6.5, 6.6, 60.0)
+    assert m.silence_change(6.6).kind == "back"
+
+
+def test_a_silence_between_two_looks_is_said_with_its_length() -> None:
+    m = SensorMonitor("lidar", 10.0, stale_after_s=1.0)
+    t = feed(m, 10.0, 12.0, 10.0)
+    assert m.silence_change(12.0) is None
+    feed(m, t + 1.4, 14.0, 10.0)  # silent 1.5 s, between the looks at 12 and 14
+    assert m.silence_change(14.0) == SilenceChange("was_silent", pytest.approx(1.5))
+    assert m.silence_change(14.5) is None
+    feed(m, 14.0, 14.95, 10.0)  # gaps under stale_after_s: no silence
+    assert m.silence_change(15.0) is None
 
 
 def test_a_silence_across_a_reset_of_the_receive_clock_ends_without_a_length() -> None:
     m = SensorMonitor("imu", 60.0, stale_after_s=0.5)
     feed(m, 100.0, 101.0, 60.0)
-    assert m.silence_change(102.0)[0]
+    assert m.silence_change(102.0).kind == "silent"
     feed(m, 10.0, 10.1, 60.0, stamp0=10**12)  # a bag played again
     change = m.silence_change(10.1)
-    assert change is not None and not change[0] and change[1] != change[1]
+    assert change.kind == "back" and math.isnan(change.seconds)
+
+
+def test_receive_time_zero_starts_no_silence() -> None:
+    """A node on /clock takes messages at time 0 before the clock's first tick: no silence from 0 to the tick."""
+    m = SensorMonitor("imu", 60.0, stale_after_s=0.5)
+    m.accept(0.0, 1_000)
+    assert m.silence_change(1.7e9) is None  # the clock ticked, nothing since
+    feed(m, 1.7e9, 1.7e9 + 1.0, 60.0, stamp0=-10**18)
+    assert m.silence_change(1.7e9 + 1.0) is None
 
 
 def test_low_rate_warns() -> None:

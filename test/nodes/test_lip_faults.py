@@ -118,15 +118,18 @@ def test_each_fault_is_on_diagnostics_while_it_lasts(run) -> None:
 
 @pytest.mark.parametrize("run", ["sensors"], indirect=True)
 def test_a_silent_sensor_is_logged_when_its_silence_starts_and_when_it_ends(run) -> None:
-    """The LiDAR's gap and the silent DOT: a WARN as each falls silent (1 s without a message: ``stale_after_s``),
-    and a line with the silence's length as it comes back (from its last message before to its first after: the
-    window and up to a LiDAR period more)."""
-    bag, _, faults, proc = run
-    windows = {w.kind: (w.end_ns - w.start_ns) * 1e-9 for w in read_fault_windows(bag)}
-    for kind, name in (("lidar_gap", "ouster"), ("imu_silent", "left_ankle")):
-        assert re.search(rf"no valid message for: [^\n]*\b{name} \(", proc.stderr), (kind, proc.stderr[-3000:])
-        back = re.findall(rf"receiving again after a silence of: [^\n]*\b{name} \([^)]*\) (\d+\.\d) s", proc.stderr)
-        assert any(windows[kind] - 0.05 <= float(b) <= windows[kind] + 0.25 for b in back), (kind, back)
+    """The LiDAR's gap and the silent DOT: a WARN from the node that takes the sensor as it falls silent (1 s
+    without a message: ``stale_after_s``), and a line with the silence's length as it comes back (from its last
+    message before to its first after: the fault's length and up to a LiDAR period more, printed to 0.1 s; measured
+    2.1 and 3.0 s)."""
+    _, _, faults, proc = run
+    for kind, node, name in (("lidar_gap", "segmentation_node", "ouster"), ("imu_silent", "calibration_node",
+                                                                               "left_ankle")):
+        seconds = faults[kind][0][1]
+        assert re.search(rf"\[{node}\]: no valid message for: [^\n]*\b{name} \(", proc.stderr), kind
+        back = re.findall(rf"\[{node}\]: receiving again after a silence of: [^\n]*\b{name} \([^)]*\) (\d+\.\d) s",
+                          proc.stderr)
+        assert any(seconds - 0.05 <= float(b) <= seconds + 0.2 for b in back), (kind, back)
 
 
 @pytest.mark.parametrize("run", ["sensors"], indirect=True)  # the run with a silent DOT
@@ -344,7 +347,8 @@ def test_a_graph_killed_during_a_fault_resumes_with_what_it_saved(capture: Path,
     assert not any("Traceback" in log or "terminate called" in log for log in logs), logs[-1][-3000:]
     assert "resuming: the performer was last seen" in logs[1], logs[1][-3000:]
     # the restarted graph's poses: one the killed graph published just before the kill can reach this node after it
-    # (seen once, stamped before the kill); the restarted graph subscribes after the kill, to clouds stamped after it
+    # (seen once, stamped before the kill); the restarted graph subscribes seconds after the kill, so the clouds it
+    # gets were published, and stamped, after it
     after = [(stamp, position) for stamp, position, r in poses if r == 1 and stamp > killed_at]
     assert np.isfinite(np.array([p for _, p in after])).all()
     # started again, it poses the next frame it can: the first within 6 s of its nodes being ready (its start-up

@@ -285,7 +285,7 @@ class BodyNode(GraphNode):
                        self._on_suit_odometry, suit_input(p["suit_rate_hz"]), polled=True)
         self.create_subscription(Int64, p["offset_topic"], self._on_offset, LATCHED, callback_group=self.group)
         self.add_input("fused odometry", p["odometry_topic"], Odometry, p["lidar_rate_hz"], self._on_odometry,
-                       FUSED_ODOMETRY_QOS)
+                       FUSED_ODOMETRY_QOS, watched=False)  # the trajectory node's: none until the jump is seen
         # not decoded yet: each sample's bytes and what its stamp is moved on by on the suit's time line
         self._raw: dict[str, list[tuple[bytes, int]]] = {s: [] for s in self.body.segments}
         self._newest: dict[str, int] = {}  # each segment's newest stamp received
