@@ -9,7 +9,10 @@ much further than the receive clock since the last message; it is reported
 (``count_missing``) has its period measured from the stamps
 (:class:`lip_ros.core.frame_period.FramePeriod`): the missing messages are
 counted in it, and one far from the expected rate is reported (WARN: a LiDAR
-at 20 Hz where 10 was configured).
+at 20 Hz where 10 was configured). Messages published and never taken (lost in
+transport or overwritten in the input's queue) are counted from the publisher's
+sequence numbers (:attr:`SensorMonitor.delivery`,
+:class:`lip_ros.core.delivery.DeliveryGaps`) and reported (WARN) for ``window_s``.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 
 from lip_msgs_py.diagnostics import DiagnosticLevel
 from lip_ros.core.clock import CLOCK_STEP_NS, stepped_back
+from lip_ros.core.delivery import DeliveryGaps, not_taken_how
 from lip_ros.core.frame_period import FramePeriod
 
 __all__ = ["SensorReport", "SilenceChange", "SensorMonitor", "odd_delays"]
@@ -51,6 +55,8 @@ class SensorReport:
     clock_steps: int = 0  # how often the stamps stepped back or ran ahead of the receive clock, since start
     delay_s: float | None = None  # median receive time less stamp of the latest messages (SensorMonitor.delay_s)
     missing: int = 0  # messages missing from gaps in the stamps, since start (with count_missing)
+    not_taken: int = 0  # messages published and never taken, since start (SensorMonitor.delivery)
+    lost_in_transport: int = 0  # of which DDS said they never arrived
 
 
 class SilenceChange(NamedTuple):
@@ -77,6 +83,8 @@ class SensorMonitor:
     window_s: float = 2.0
     max_delay_s: float | None = None  # messages arriving later than this after their stamps (median): WARN
     count_missing: bool = False  # count messages missing from gaps in the stamps (a sensor stamping each period)
+    #: messages published and never taken, from the publisher's sequence numbers, over ``window_s`` as the rest
+    delivery: DeliveryGaps = field(init=False, repr=False)
     _arrivals: deque[float] = field(default_factory=deque, repr=False)
     # receive time - stamp (s) of the latest messages
     _delays: deque[float] = field(default_factory=lambda: deque(maxlen=_DELAY_MESSAGES), repr=False)
@@ -95,6 +103,9 @@ class SensorMonitor:
     _silent: bool = False  # said silent by silence_change, and not said back since
     _silence_lasted_s: float | None = None  # receive time from the last message before a silence to the first after
     _unseen_silence_s: float | None = None  # a silence that began and ended between two looks, how long
+
+    def __post_init__(self) -> None:
+        self.delivery = DeliveryGaps(self.window_s)
 
     def accept(self, now_s: float, stamp_ns: int) -> None:
         """Count a valid message with measurement stamp ``stamp_ns`` received at ``now_s``."""
@@ -218,6 +229,10 @@ class SensorMonitor:
         if self._recent_missing:
             problems.append(f"{sum(n for _, n in self._recent_missing)} missing (gaps in the accepted stamps) in "
                             f"the last {self.window_s:g} s")
+        gaps = self.delivery.recent(now_s)
+        if gaps.not_taken:
+            how = not_taken_how(gaps, self.delivery.loss_events)
+            problems.append(f"{gaps.not_taken} published and not taken ({how}) in the last {self.window_s:g} s")
         if delay is not None and self.max_delay_s is not None and delay > self.max_delay_s:
             problems.append(f"arriving {1e3 * delay:.0f} ms after their stamps (more than "
                             f"{1e3 * self.max_delay_s:.0f} ms)")
@@ -232,8 +247,10 @@ class SensorMonitor:
             health, message = DiagnosticLevel.WARN, "; ".join(problems)
         else:
             health, message = DiagnosticLevel.OK, f"{rate:.1f} Hz"
+        total = self.delivery.total
         return SensorReport(self.name, health, message, rate, self._received, self._accepted, rejected,
-                            self._out_of_order, age, self._clock_steps, delay, self._missing)
+                            self._out_of_order, age, self._clock_steps, delay, self._missing, total.not_taken,
+                            total.lost_in_transport)
 
 
 def odd_delays(delays: Mapping[str, float | None], tolerance_s: float) -> dict[str, float]:

@@ -21,6 +21,7 @@ has received nothing :data:`NO_MESSAGE_LOG_S` after the node started (WARN).
 
 from __future__ import annotations
 
+import functools
 import gc
 import math
 import re
@@ -39,6 +40,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.callback_groups import CallbackGroup, MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks, UnsupportedEventTypeError
 from rclpy.exceptions import InvalidHandle, InvalidParameterTypeException, ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -60,6 +62,7 @@ from lip_msgs_py import (
 )
 from lip_msgs_py.cdr import imu_samples
 from lip_ros.core.clock import SteppingClock
+from lip_ros.core.delivery import Delivery, not_taken_how
 from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import keep_message_buffers, use_lip_dds_profile
 from lip_ros.resources import params_path
@@ -82,6 +85,10 @@ BETWEEN_NODES = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: SensorDataQoS (best effort) for the 60 Hz IMUs, with room for the samples that arrive while a frame is processed.
 IMU_INPUT = QoSProfile(depth=50, reliability=qos_profile_sensor_data.reliability,
                        durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
+#: An input's /diagnostics values: its messages published and never taken since start, and of them those DDS said
+#: were lost in transport (:class:`lip_ros.core.delivery.DeliveryGaps`; the rest were overwritten in its queue).
+NOT_TAKEN_VALUE = "not_taken"
+LOST_IN_TRANSPORT_VALUE = "not_taken_lost_in_transport"
 #: seconds (steady time) after a node's start at which each input that has received nothing yet is logged, once
 NO_MESSAGE_LOG_S = 10.0
 #: how often a node takes the messages of its polled inputs (:meth:`GraphNode.add_input`, ``polled``) and looks at
@@ -340,17 +347,19 @@ class GraphNode(Node):
         self._reported: Counter[str] = Counter()  # self.frames at the last report
         self._last_skip = ""  # why the latest skipped frame was skipped, in detail
         self._inputs: dict[str, tuple[str, type, SensorMonitor]] = {}
-        self._takers: dict[str, tuple[Subscription, Callable[[Any], None]]] = {}  # by input name
+        self._takers: dict[str, tuple[Subscription, Callable[[Any, dict[str, Any]], None]]] = {}  # by input name
         self._polled: list[str] = []  # the inputs no executor waits on (:meth:`take_polled`)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)  # also ticks while a bag's /clock is paused or over
         self._started_ns = self.steady.now().nanoseconds
         self._watched: list[str] = []  # the inputs whose silences are logged (add_input's ``watched``)
         self._waiting: set[str] = set()  # watched inputs logged as having received nothing since start
+        self._not_taken_logged: dict[str, Delivery] = {}  # by input: its messages not taken, as last logged
         self.create_timer(self.params["diagnostics_period_s"], self._on_diagnostics_timer, self.group,
                           clock=self.steady)
 
     def _serialised(self, callback: Callable[..., Any]) -> Callable[..., Any]:
+        @functools.wraps(callback)  # its signature: rclpy hands a subscription's message info to a two-argument one
         def call(*args: Any) -> Any:
             with self.serial:
                 return callback(*args)
@@ -423,7 +432,10 @@ class GraphNode(Node):
         :data:`BETWEEN_NODES`); in a composed graph (``local_topics``) of a node whose ``direct_inputs``
         (:data:`DIRECT_INPUTS_PARAM`) is true it is handed over by a direct call. ``watched``: the log says
         when the input falls silent and comes back (:meth:`_log_silences`; default: unless ``from_graph``, whose
-        silence follows that of the other node's inputs, or that node's own choice not to publish)."""
+        silence follows that of the other node's inputs, or that node's own choice not to publish). An input over
+        DDS counts the messages published and never taken from the publisher's sequence numbers, and those DDS
+        says were lost in transport (not for a ``polled`` input, whose QoS events no executor handles):
+        :class:`lip_ros.core.delivery.DeliveryGaps`, on /diagnostics and in the log (:meth:`_log_not_taken`)."""
         max_delay = None if stamped_at is None else stamped_at + self.params["max_input_delay_s"]
         monitor = SensorMonitor(name, expected_rate_hz=rate_hz, stale_after_s=self.params["stale_after_s"],
                                 max_delay_s=max_delay, count_missing=count_missing)
@@ -431,23 +443,37 @@ class GraphNode(Node):
         if (not from_graph) if watched is None else watched:
             self._watched.append(name)
 
-        def callback(msg: Any) -> None:
+        def callback(msg: Any, info: dict[str, Any] | None) -> None:
             now = self.now_ns() * 1e-9
+            if info is not None:
+                monitor.delivery.taken(now, info.get("publication_sequence_number"))
             try:
                 monitor.accept(now, handle(msg))
             except MalformedMessageError as exc:
                 monitor.reject(now, rejection_reason(exc))
                 self.get_logger().warning(f"{name} ({topic}): message skipped: {exc}", throttle_duration_sec=5.0)
 
+        def lost(status: QoSMessageLostInfo) -> None:
+            with self.serial:
+                monitor.delivery.lost_in_transport(self.now_ns() * 1e-9, status.total_count_change)
+
         qos = BETWEEN_NODES if from_graph else qos
         if polled and qos.reliability != ReliabilityPolicy.BEST_EFFORT:
             raise ValueError(f"polled input {name} must be best effort (no QoS event of it is handled)")
         if from_graph and self.local_topics is not None and self.params.get("direct_inputs", False):
-            self.local_topics.subscribe(self.resolve_topic_name(topic), self._serialised(callback))
+            self.local_topics.subscribe(self.resolve_topic_name(topic),
+                                        self._serialised(lambda msg: callback(msg, None)))
             return
         group = _NOT_WAITED_ON if polled else self.group
-        self._takers[name] = (self.create_subscription(msg_type, topic, callback, qos, callback_group=group,
-                                                       raw=raw), callback)
+        monitor.delivery.loss_events = not polled
+        try:
+            subscription = self.create_subscription(
+                msg_type, topic, callback, qos, callback_group=group, raw=raw,
+                event_callbacks=None if polled else SubscriptionEventCallbacks(message_lost=lost))
+        except UnsupportedEventTypeError:  # an rmw without loss events: what is not taken is not told apart
+            monitor.delivery.loss_events = False
+            subscription = self.create_subscription(msg_type, topic, callback, qos, callback_group=group, raw=raw)
+        self._takers[name] = (subscription, callback)
         if polled:
             self._polled.append(name)
 
@@ -491,7 +517,7 @@ class GraphNode(Node):
                 return taken
             if message is None:
                 return taken
-            callback(message[0])
+            callback(*message)
             taken += 1
 
     def count_frame(self, what: str, detail: str = "") -> None:
@@ -523,10 +549,14 @@ class GraphNode(Node):
         statuses = []
         self.take_polled()  # what waits in the polled inputs' queues is not a silence
         self._log_silences(now * 1e-9)
-        for topic, _, monitor in self._inputs.values():
+        self._log_not_taken()
+        for name, (topic, _, monitor) in self._inputs.items():
+            if name in self._takers:  # over DDS: its gaps counted while the topic has one publisher
+                monitor.delivery.publishers(self.count_publishers(topic))
             r = monitor.report(now * 1e-9)
             values = {"rate_hz": f"{r.rate_hz:.2f}", "received": r.received, "accepted": r.accepted,
                       "out_of_order": r.out_of_order, "clock_steps": r.clock_steps, "missing": r.missing,
+                      NOT_TAKEN_VALUE: r.not_taken, LOST_IN_TRANSPORT_VALUE: r.lost_in_transport,
                       "age_s": "none" if r.age_s is None else f"{r.age_s:.3f}",
                       "delay_ms": "none" if r.delay_s is None else f"{1e3 * r.delay_s:.1f}"}
             values.update({f"rejected: {k}": v for k, v in r.rejected.items()})
@@ -576,6 +606,23 @@ class GraphNode(Node):
                         "publisher not running, or not reachable over DDS)")
         if said["first"]:
             log.info(f"first message, {waited_s:.0f} s after start, on: " + ", ".join(said["first"]))
+
+    def _log_not_taken(self) -> None:
+        """Log (WARN) the inputs with messages published and never taken since the last report (:meth:`add_input`):
+        how many, and of them how many DDS said were lost in transport and how many were overwritten in the
+        input's queue."""
+        said = []
+        for name in self._takers:
+            topic, _, monitor = self._inputs[name]
+            total = monitor.delivery.total
+            before = self._not_taken_logged.get(name, Delivery(0, 0))
+            if total.not_taken == before.not_taken:
+                continue
+            self._not_taken_logged[name] = total
+            new = Delivery(total.not_taken - before.not_taken, total.lost_in_transport - before.lost_in_transport)
+            said.append(f"{name} ({topic}) {new.not_taken} ({not_taken_how(new, monitor.delivery.loss_events)})")
+        if said:
+            self.get_logger().warning("published and never taken since the last report: " + ", ".join(said))
 
 
 def read_imu(data: bytes) -> ImuSample:

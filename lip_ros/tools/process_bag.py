@@ -81,6 +81,7 @@ from lip_ros.hsc4d.sensors import (
 )
 from lip_ros.lip.calibration import load_calibration
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
+from lip_ros.nodes.base import LOST_IN_TRANSPORT_VALUE, NOT_TAKEN_VALUE
 from lip_ros.nodes.hsc4d import MOUNT_HIP_VALUE, MOUNT_SPIN_VALUE, OFFSET_VALUE, OPTIMISING_VALUE
 from lip_ros.nodes.lip import CALIBRATION_NODE_NAME, DOT_LATENCY_VALUE
 from lip_ros.outputs import GT_TOPICS
@@ -168,7 +169,10 @@ class ProcessSummary:
 
     frames_in: int
     frames: dict[str, int]  # "pose", "calibrating", "skipped: <reason>", "pending" -> frames
-    received: int | None = None  # clouds the graph's first node took in (the rest were lost in transport)
+    received: int | None = None  # clouds the graph's first node took in (the rest never reached it)
+    #: of the clouds not taken by that node, by the publisher's sequence numbers: (all, of which DDS said lost in
+    #: transport; the rest overwritten in the node's input queue), None if the node did not say
+    not_taken: tuple[int, int] | None = None
     latency_ms: dict[str, float] = field(default_factory=dict)
     latency_of: str = "pose published"  # what the latency runs to from the cloud's receipt
     matched: int = 0  # poses with a /gt pose at the same stamp
@@ -192,7 +196,10 @@ class ProcessSummary:
         unaccounted = self.frames_in - sum(self.frames.values())
         lost = ""
         if self.received is not None:
-            lost = (f" (lost in transport: the graph received {self.received} of the {self.frames_in} clouds)"
+            lost = (f" (the graph received {self.received} of the {self.frames_in} clouds: "
+                    + ("lost in transport or overwritten in its input's queue" if self.not_taken is None else
+                       f"its input counted {self.not_taken[0]} published and never taken, {self.not_taken[1]} lost "
+                       f"in transport, {self.not_taken[0] - self.not_taken[1]} overwritten in its queue") + ")"
                     if self.received < self.frames_in else " (every cloud was received)")
         out = [f"frames in: {self.frames_in}; " + ", ".join(f"{k} {v}" for k, v in sorted(self.frames.items()))
                + (f"; not accounted for {unaccounted}{lost}" if unaccounted else "")]
@@ -243,12 +250,16 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined
                       ) -> ProcessSummary:
     """Frame accounting (last /diagnostics of the nodes) and accuracy against the inputs' truth (HSC4D: also of
     the offline refinement's bag ``refined``, if given)."""
-    last, received = {}, {}  # status name -> its last values; ... of the LiDAR's inputs -> clouds received
+    last, lidar = {}, {}  # status name -> its last values; ... of the LiDAR's inputs
     for m in read_messages(outputs, ["/diagnostics"]):
         for s in msg_to_diagnostics(m.msg).statuses:
             last[s.name] = s.values
             if s.hardware_id == branch.lidar and "received" in s.values:
-                received[s.name] = int(s.values["received"])
+                lidar[s.name] = s.values
+    first = max(lidar.values(), key=lambda v: int(v["received"]), default=None)  # the node that took the most
+    not_taken = None
+    if first is not None and NOT_TAKEN_VALUE in first:
+        not_taken = (int(first[NOT_TAKEN_VALUE]), int(first.get(LOST_IN_TRANSPORT_VALUE, 0)))
     if branch.latency_status not in last:
         raise ToolError(f"{outputs} holds no diagnostics of the {branch.name} graph ({branch.latency_status})")
     frames = {k.removeprefix("frames "): int(v) for name, values in last.items() if name.endswith(": frames")
@@ -257,8 +268,8 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined
     if pending:  # waiting for DOT data past the end of the bag
         frames["pending"] = pending
     latency = _percentiles(last[branch.latency_status], branch.latency_prefix)
-    summary = ProcessSummary(bag_topics(inputs)[branch.lidar].count, frames, max(received.values(), default=None),
-                             latency, branch.latency_of,
+    summary = ProcessSummary(bag_topics(inputs)[branch.lidar].count, frames,
+                             None if first is None else int(first["received"]), not_taken, latency, branch.latency_of,
                              dot_latency=last.get(CALIBRATION_FRAMES, {}).get(DOT_LATENCY_VALUE, ""))
     if branch is HSC4D:
         offset = next((v.get(OFFSET_VALUE) for v in last.values() if OFFSET_VALUE in v), "")

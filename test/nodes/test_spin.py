@@ -1,6 +1,7 @@
 """How a graph's spinning threads tell a shutdown from a failure (rclpy in this process, no traffic), how a
-node takes a fast input's waiting messages itself, and polls an input no executor waits on (over DDS), and how the
-nodes of one process hand their messages to each other directly."""
+node takes a fast input's waiting messages itself, polls an input no executor waits on and counts the messages
+overwritten in an input's queue (over DDS), and how the nodes of one process hand their messages to each other
+directly."""
 
 from __future__ import annotations
 
@@ -9,14 +10,18 @@ import time
 
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Int64
 
 from lip_ros.nodes.base import (
     BETWEEN_NODES,
     DIRECT_INPUTS_PARAM,
+    LOST_IN_TRANSPORT_VALUE,
+    NOT_TAKEN_VALUE,
     RELIABLE,
     GraphNode,
     LocalTopics,
@@ -159,6 +164,93 @@ def test_a_polled_input_is_taken_only_when_the_node_polls_it() -> None:
                             polled=True)
     finally:
         executor.shutdown()
+        driver.destroy_node()
+        probe.destroy_node()
+        rclpy.try_shutdown()
+
+
+_SHALLOW = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+class _ShallowProbe(GraphNode):
+    """A graph node with two inputs of five messages' queues, one the executor would wait on and one it polls."""
+
+    NAME = "lip_ros_test_not_taken"
+    PARAMS_FILE = LIP_PARAMS_FILE
+
+    def __init__(self) -> None:
+        super().__init__(self.NAME)
+        self.handled: dict[str, list[int]] = {"spun": [], "polled": []}
+        for name in self.handled:
+            self.add_input(name, f"/lip_ros_test/not_taken_{name}", Int64, 100.0,
+                           lambda msg, name=name: self.handled[name].append(msg.data) or msg.data, _SHALLOW,
+                           polled=name == "polled")
+
+
+def test_messages_overwritten_in_an_input_queue_are_counted_on_diagnostics_and_logged(capfd) -> None:
+    """One message taken on each input, then 30 published while the node takes none: it takes the last 5 (its
+    queue), so the 25 before were published and never taken, overwritten in the queue (they all arrived: DDS lost
+    none). Each input's /diagnostics status counts them (values and message: the polled one cannot tell a loss in
+    transport from an overwrite, its QoS events unhandled) and a WARN says so. A publisher started again numbers
+    its messages from 1 again: not a gap."""
+    rclpy.init()
+    probe = _ShallowProbe()
+    driver = rclpy.create_node("lip_ros_test_not_taken_driver")
+    publishers = {name: driver.create_publisher(Int64, f"/lip_ros_test/not_taken_{name}", _SHALLOW)
+                  for name in probe.handled}
+    reports: list[DiagnosticArray] = []
+    driver.create_subscription(DiagnosticArray, "/diagnostics", reports.append, RELIABLE)
+
+    def statuses(deadline: float) -> dict[str, object]:
+        reports.clear()
+        probe._on_diagnostics_timer()  # a report now (the timer's call)
+        while time.monotonic() < deadline:
+            rclpy.spin_once(driver, timeout_sec=0.05)
+            mine = [s for r in reports for s in r.status if s.name.startswith(probe.NAME + ": ")]
+            if mine:
+                return {s.name.split(": ")[1]: s for s in mine}
+        raise AssertionError("no report of the probe on /diagnostics")
+
+    try:
+        deadline = time.monotonic() + 20.0
+        while (min(p.get_subscription_count() for p in publishers.values()) == 0
+               or driver.count_publishers("/diagnostics") == 0) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for k in range(31):  # the first taken alone: the count starts from it
+            for publisher in publishers.values():
+                publisher.publish(Int64(data=k))
+            while k == 0 and not (probe.handled["spun"] and probe.handled["polled"]) and time.monotonic() < deadline:
+                time.sleep(0.02)
+                probe.take_waiting("spun")
+                probe.take_polled()
+        time.sleep(0.3)
+        assert probe.take_waiting("spun") == 5 and probe.take_polled() == 5
+        assert probe.handled == {"spun": [0, *range(26, 31)], "polled": [0, *range(26, 31)]}
+        capfd.readouterr()
+        status = statuses(deadline)
+        values = {name: {v.key: v.value for v in s.values} for name, s in status.items()}
+        assert values["spun"][NOT_TAKEN_VALUE] == "25" and values["spun"][LOST_IN_TRANSPORT_VALUE] == "0"
+        assert values["polled"][NOT_TAKEN_VALUE] == "25"
+        assert ("25 published and not taken (0 lost in transport, 25 overwritten in the input's queue)"
+                in status["spun"].message)
+        assert ("25 published and not taken (lost in transport or overwritten in the input's queue)"
+                in status["polled"].message)
+        log = capfd.readouterr().err
+        assert ("published and never taken since the last report: spun (/lip_ros_test/not_taken_spun) 25 (0 lost in "
+                "transport, 25 overwritten in the input's queue), polled (/lip_ros_test/not_taken_polled) 25 (lost in "
+                "transport or overwritten in the input's queue)") in log
+        driver.destroy_publisher(publishers["spun"])  # started again: its numbers from 1
+        again = driver.create_publisher(Int64, "/lip_ros_test/not_taken_spun", _SHALLOW)
+        while again.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for k in range(1, 4):
+            again.publish(Int64(data=k))
+        time.sleep(0.3)
+        assert probe.take_waiting("spun") == 3 and probe.handled["spun"][-3:] == [1, 2, 3]
+        status = statuses(deadline)
+        assert {v.key: v.value for v in status["spun"].values}[NOT_TAKEN_VALUE] == "25"
+        assert "published and never taken" not in capfd.readouterr().err
+    finally:
         driver.destroy_node()
         probe.destroy_node()
         rclpy.try_shutdown()

@@ -1,5 +1,5 @@
 """lip_process_bag's report of the frames: a frame not accounted for says whether its cloud ever reached the
-graph."""
+graph, and if not, where it went as far as the graph's input could tell."""
 
 from __future__ import annotations
 
@@ -9,7 +9,11 @@ from lip_ros.tools.process_bag import ProcessSummary
 def test_frames_not_accounted_for_say_whether_the_graph_received_their_clouds():
     assert ProcessSummary(10, {"pose": 10}, 10).lines()[0] == "frames in: 10; pose 10"
     lost = ProcessSummary(10, {"pose": 9}, 9).lines()[0]
-    assert lost.endswith("not accounted for 1 (lost in transport: the graph received 9 of the 10 clouds)")
+    assert lost.endswith("not accounted for 1 (the graph received 9 of the 10 clouds: lost in transport or "
+                         "overwritten in its input's queue)")
+    told = ProcessSummary(10, {"pose": 7}, 7, (3, 1)).lines()[0]
+    assert told.endswith("not accounted for 3 (the graph received 7 of the 10 clouds: its input counted 3 published "
+                         "and never taken, 1 lost in transport, 2 overwritten in its queue)")
     held = ProcessSummary(10, {"pose": 8, "skipped: malformed cloud": 1}, 10).lines()[0]
     assert held.endswith("not accounted for 1 (every cloud was received)")
     assert ProcessSummary(10, {"pose": 9}).lines()[0].endswith("not accounted for 1")
