@@ -101,10 +101,9 @@ class DeliveryGaps:
         self._recent.append((now_s, not_taken, lost))
 
 
-def not_taken_how(delivery: Delivery, loss_events: bool) -> str:
+def not_taken_how(delivery: Delivery, loss_events: bool, queue: str = "the input's queue") -> str:
     """Where the messages of ``delivery`` not taken went, as a log line says it (``loss_events``: whether DDS's
-    losses were counted)."""
+    losses were counted; ``queue``: the subscription's queue, as the line names it)."""
     if not loss_events:
-        return "lost in transport or overwritten in the input's queue"
-    return (f"{delivery.lost_in_transport} lost in transport, {delivery.overwritten} overwritten in the input's "
-            "queue")
+        return f"lost in transport or overwritten in {queue}"
+    return f"{delivery.lost_in_transport} lost in transport, {delivery.overwritten} overwritten in {queue}"

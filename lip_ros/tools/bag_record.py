@@ -10,7 +10,10 @@ offered QoS per topic) opens in ``ros2 bag``, rosbags and Foxglove. Log times
 are the middleware's reception times (system clock), or the node clock's when
 ``use_sim_time`` is set (``--ros-args -p use_sim_time:=true``). Recording stops on
 SIGINT or SIGTERM, after ``--duration`` or ``--max-messages``; the bag is always
-closed cleanly.
+closed cleanly. Messages published and never recorded (lost in transport, or
+overwritten in the recorder's queue while it wrote) are counted per topic from
+the publishers' sequence numbers (``lip_ros.core.delivery``; not after the last
+message recorded, nor while a topic has several publishers) and said at the end.
 """
 
 from __future__ import annotations
@@ -22,18 +25,21 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
+from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks, UnsupportedEventTypeError
 from rclpy.node import Node
 from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Writer
 
 from lip_msgs_py import rclpy_message_class
 from lip_ros.bagio import jazzy_typestore, mcap_writer
+from lip_ros.core.delivery import DeliveryGaps, not_taken_how
 from lip_ros.tools.bag_qos import common_qos, qos_to_bag
 from lip_ros.tools.ros_cli import ArgumentParser, Progress, ToolError, run_tool, start_ros, stop_on_signals, tool_args
 
 PROG = "lip_bag_record"
 RECORD_DEPTH = 100  # subscription queue per topic: room for bursts while a large message is being written
-GRAPH_POLL_S = 0.2  # how often the graph is searched for publishers of topics not yet subscribed
+GRAPH_POLL_S = 0.2  # how often the graph is searched for publishers (of topics not yet subscribed; how many)
+RECORDER_QUEUE = "the recorder's queue"  # where a message not recorded may have been overwritten, as said
 
 
 def record_type(msgtype: str, topic: str) -> type:
@@ -53,6 +59,8 @@ class BagRecorder:
                  max_messages: int | None = None) -> None:
         self.node, self.writer, self.stop, self.max_messages = node, writer, stop, max_messages
         self.counts: dict[str, int] = {}
+        #: per topic subscribed: the messages published and never recorded (times: time.monotonic)
+        self.gaps: dict[str, DeliveryGaps] = {}
         self.pending = list(dict.fromkeys(topics))
         self.messages = 0
 
@@ -68,10 +76,34 @@ class BagRecorder:
                 continue  # the publisher left again
             conn = self.writer.add_connection(topic, types[topic][0], typestore=jazzy_typestore(),
                                               offered_qos_profiles=[qos_to_bag(q) for q in offers])
-            self.node.create_subscription(cls, topic, lambda data, info, c=conn: self._write(c, data, info),
-                                          common_qos(offers, depth=RECORD_DEPTH), raw=True)
+            gaps = self.gaps[topic] = DeliveryGaps()
+            qos = common_qos(offers, depth=RECORD_DEPTH)
+
+            def write(data: bytes, info: dict[str, Any], conn: Connection = conn) -> None:
+                self._write(conn, data, info)
+
+            def lost(status: QoSMessageLostInfo, gaps: DeliveryGaps = gaps) -> None:
+                gaps.lost_in_transport(time.monotonic(), status.total_count_change)
+
+            try:
+                self.node.create_subscription(cls, topic, write, qos, raw=True,
+                                              event_callbacks=SubscriptionEventCallbacks(message_lost=lost))
+            except UnsupportedEventTypeError:  # an rmw without loss events: losses not told from overwrites
+                gaps.loss_events = False
+                self.node.create_subscription(cls, topic, write, qos, raw=True)
             self.counts[topic] = 0
             self.pending.remove(topic)
+
+    def count_publishers(self) -> None:
+        """Tell each subscribed topic's count of messages not recorded how many publishers it has now."""
+        for topic, gaps in self.gaps.items():
+            gaps.publishers(self.node.count_publishers(topic))
+
+    def not_recorded(self) -> list[str]:
+        """Per topic with messages published and never recorded: how many and where they went."""
+        return [f"{topic}: {gaps.total.not_taken} published and never recorded "
+                f"({not_taken_how(gaps.total, gaps.loss_events, RECORDER_QUEUE)})"
+                for topic, gaps in self.gaps.items() if gaps.total.not_taken]
 
     def _log_ns(self, info: dict[str, Any]) -> int:
         """When the middleware received the message (Python's callback may run later); sim time if in use."""
@@ -83,6 +115,7 @@ class BagRecorder:
         if self.max_messages is not None and self.messages >= self.max_messages:
             return
         self.writer.write(conn, self._log_ns(info), data)
+        self.gaps[conn.topic].taken(time.monotonic(), info.get("publication_sequence_number"))
         self.counts[conn.topic] += 1
         self.messages += 1
         if self.max_messages is not None and self.messages >= self.max_messages:
@@ -93,8 +126,10 @@ class BagRecorder:
         end = None if duration_s is None else time.monotonic() + duration_s
         next_poll = 0.0
         while not self.stop.is_set() and (end is None or time.monotonic() < end):
-            if self.pending and time.monotonic() >= next_poll:
-                self.poll_graph()
+            if time.monotonic() >= next_poll:
+                if self.pending:
+                    self.poll_graph()
+                self.count_publishers()
                 next_poll = time.monotonic() + GRAPH_POLL_S
             rclpy.spin_once(self.node, timeout_sec=0.05)
             if progress:
@@ -137,6 +172,8 @@ def _record(argv: list[str]) -> int:
         node.destroy_node()
     for topic in recorder.pending:
         print(f"{PROG}: warning: no publisher of {topic} appeared", file=sys.stderr)
+    for line in recorder.not_recorded():
+        print(f"{PROG}: warning: {line}", file=sys.stderr)
     counts = ", ".join(f"{t} {n}" for t, n in recorder.counts.items())
     print(f"{PROG}: wrote {args.out}: {recorder.messages} messages ({counts})")
     return 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -18,7 +19,7 @@ from mcap.reader import make_reader
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import QosDurability, QosReliability
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from std_msgs.msg import String
+from std_msgs.msg import Int64, String
 
 from lip_msgs_py import stamp_to_ns
 from lip_ros.bagio import (
@@ -302,6 +303,44 @@ def test_recorder_stops_after_max_messages(tmp_path: Path) -> None:
     assert len(msgs) == 25 and all(m.msg.data.startswith("hello") for m in msgs)
     info = bag_topics(out)["/chatter"]
     assert info.msgtype == "std_msgs/msg/String" and info.reliability == "reliable"
+
+
+def test_recorder_says_how_many_messages_it_never_recorded(tmp_path: Path) -> None:
+    """A burst of 5000 best-effort messages, faster than the recorder writes them (its queue: RECORD_DEPTH), then
+    one more after a pause: the recorder counts those it never got from the publisher's sequence numbers, so that
+    what the bag holds and what it says it missed add up to every message from the first it recorded to the
+    last."""
+    out = tmp_path / "burst"
+    recorder = subprocess.Popen([console_script("lip_bag_record"), str(out), "--topics", "/burst"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rclpy.init()
+    node = rclpy.create_node("bag_tools_test_burst")
+    last = 5001
+    try:
+        pub = node.create_publisher(Int64, "/burst", QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        deadline = time.monotonic() + TIMEOUT_S
+        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        for k in range(1, last):  # the k-th message of this publisher is its sequence number k
+            pub.publish(Int64(data=k))
+        time.sleep(1.0)
+        pub.publish(Int64(data=last))  # the gaps are seen at the next message recorded
+        time.sleep(1.0)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        recorder.send_signal(signal.SIGINT)
+    _, err = recorder.communicate(timeout=TIMEOUT_S)
+    assert recorder.returncode == 0, err
+    values = [m.msg.data for m in read_messages(out, ["/burst"])]
+    assert values[-1] == last and values == sorted(values)
+    said = re.search(r"/burst: (\d+) published and never recorded \((\d+) lost in transport, (\d+) overwritten in "
+                     r"the recorder's queue\)", err)
+    assert said, err
+    missed, lost, overwritten = map(int, said.groups())
+    assert missed > 0 and lost + overwritten == missed
+    assert len(values) + missed == last - values[0] + 1
 
 
 def test_recorder_stops_after_duration_with_a_valid_bag(tmp_path: Path) -> None:
