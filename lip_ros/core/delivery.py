@@ -1,25 +1,32 @@
-"""Messages published to an input and never taken by it, from the publisher's sequence numbers (ROS-free).
+"""Messages published to an input and never taken by it, from the publishers' sequence numbers (ROS-free).
 
 DDS numbers each writer's samples 1, 2, 3, ... and rmw hands the number to
 the subscriber with each message it takes (rclpy's message info,
 ``publication_sequence_number``). A gap in those numbers between two messages
 taken is messages published and never taken: lost in transport (a best-effort
-sample that never arrived, which DDS reports too: rclpy's ``message_lost``
-event, :meth:`DeliveryGaps.lost_in_transport`) or overwritten in the
-subscription's queue (a KEEP_LAST queue full while the node did not take from
-it: nothing else reports that).
+sample that never arrived, or one a reliable writer gave up on, which DDS
+reports as lost: rclpy's ``message_lost`` event,
+:meth:`DeliveryGaps.lost_in_transport`) or, where DDS reported no loss,
+overwritten in the subscription's queue (a KEEP_LAST queue full while the node
+did not take from it: nothing else reports that).
 
-The numbers are per publisher and the message info does not say which one sent
-a message, so gaps are not counted while the topic has more than one publisher
-(:meth:`DeliveryGaps.publishers`). A number not above the last one starts again
-from it (a publisher restarted, or another one replaced it), and so does a
-publisher's first message: what it published before this subscriber was matched
-is nobody's loss.
+The numbers are per publisher, and the message info does not say which one sent
+a message: each number continues the *stream* whose last number is the closest
+below it; one below every stream's starts a stream of its own (a second
+publisher, or one started again), and so does one that would leave a gap while
+the topic has more publishers than streams followed (a publisher matched late,
+its numbers ahead of the others'). A stream's first message starts its count:
+what a publisher published before this subscriber was matched is nobody's loss,
+and so is what went missing before the first message taken and after the last.
+A stream not continued for ``idle_s`` is forgotten (a publisher gone). Two
+publishers' streams could swap messages where one's numbers pass the other's;
+the count stays the number of messages skipped.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -28,77 +35,103 @@ __all__ = ["Delivery", "DeliveryGaps", "SEQUENCE_UNSUPPORTED", "not_taken_how"]
 #: rmw's RMW_MESSAGE_INFO_SEQUENCE_NUMBER_UNSUPPORTED: a middleware that does not number its messages (and any
 #: number from this one up) counts nothing
 SEQUENCE_UNSUPPORTED = 2**64 - 1
+#: streams (publishers) followed at once; the one that continued longest ago goes first
+MAX_STREAMS = 8
 
 
 class Delivery(NamedTuple):
     """Messages not taken, since start or in a recent window."""
 
     not_taken: int  # published and never taken (lost in transport or overwritten in the queue)
-    lost_in_transport: int  # of which DDS said they never arrived (only where its loss events are handled)
+    lost_in_transport: int  # of which DDS said they were lost (only where its loss events are handled)
 
     @property
     def overwritten(self) -> int:
-        """Those not taken that arrived and were overwritten in the queue."""
+        """Those not taken that DDS did not report lost: overwritten in the queue."""
         return self.not_taken - self.lost_in_transport
 
 
 @dataclass
 class DeliveryGaps:
     """One input's messages published and never taken (module docstring); receive times in seconds on any
-    monotonic clock, ``window_s`` the span of :meth:`recent`."""
+    monotonic clock, ``window_s`` the span of :meth:`recent` and how long a loss DDS reported waits for its gap."""
 
     window_s: float = 2.0
     loss_events: bool = True  #: whether DDS's loss events come to :meth:`lost_in_transport` (not for a polled input)
-    _last: int | None = None  # the sequence number of the last message taken
-    _several: bool = False  # the topic has more than one publisher: gaps are not counted
+    idle_s: float = 10.0  #: a stream not continued for this long is forgotten
+    _streams: dict[int, float] = field(default_factory=dict)  # last number -> when it was taken
     _not_taken: int = 0
     _lost: int = 0
+    _pending: deque[tuple[float, int]] = field(default_factory=deque, repr=False)  # DDS's losses, gap not seen yet
     _recent: deque[tuple[float, int, int]] = field(default_factory=deque, repr=False)  # (time, not taken, lost)
-
-    def taken(self, now_s: float, sequence: int | None) -> None:
-        """A message with the publisher's ``sequence`` number (None: not given) taken at ``now_s``."""
-        if sequence is None or sequence >= SEQUENCE_UNSUPPORTED or self._several:
-            return
-        if self._last is not None and sequence > self._last + 1:
-            self._add(now_s, sequence - self._last - 1, 0)
-        self._last = sequence
-
-    def lost_in_transport(self, now_s: float, count: int) -> None:
-        """DDS says ``count`` more messages never arrived (they are gaps in the numbers taken as well)."""
-        if count > 0:
-            self._add(now_s, 0, count)
-
-    def publishers(self, count: int) -> None:
-        """The topic has ``count`` publishers now: gaps are counted while it has at most one."""
-        self._several = count > 1
-        if self._several:
-            self._last = None
 
     @property
     def counting(self) -> bool:
-        """Whether gaps are counted now (not while the topic has several publishers)."""
-        return not self._several
+        """Whether a numbered message was taken (a middleware that numbers them; not by a direct call)."""
+        return bool(self._streams)
+
+    def taken(self, now_s: float, sequence: int | None, publishers: Callable[[], int] | None = None) -> None:
+        """A message with the publisher's ``sequence`` number (None: not given) taken at ``now_s``;
+        ``publishers()``: how many publishers the topic has now (asked only where the message would leave a gap;
+        None: as many as streams followed)."""
+        if sequence is None or sequence >= SEQUENCE_UNSUPPORTED:
+            return
+        if any(not now_s - self.idle_s <= t <= now_s for t in self._streams.values()):
+            self._streams = {n: t for n, t in self._streams.items() if now_s - self.idle_s <= t <= now_s}
+        last = max((n for n in self._streams if n < sequence), default=None)
+        if (last is not None and sequence > last + 1 and publishers is not None
+                and publishers() > len(self._streams)):
+            last = None  # a publisher not followed yet: its first message, not a gap in another's numbers
+        if last is None:  # a new publisher, or one started again
+            if len(self._streams) >= MAX_STREAMS:
+                del self._streams[min(self._streams, key=self._streams.__getitem__)]
+        else:
+            del self._streams[last]
+            if sequence > last + 1:
+                self._gap(now_s, sequence - last - 1)
+        self._streams[sequence] = now_s
+
+    def lost_in_transport(self, now_s: float, count: int) -> None:
+        """DDS says ``count`` more messages were lost: told apart once their gap is seen in the messages taken
+        (the next message after them taken), within ``window_s``."""
+        if count > 0:
+            self._expire(now_s)
+            self._pending.append((now_s, count))
 
     @property
     def total(self) -> Delivery:
-        """Since start; DDS's losses counted once their gap was seen in the messages taken (the next message after
-        them taken), so never more than the gaps."""
-        return Delivery(self._not_taken, min(self._lost, self._not_taken))
+        """Since start."""
+        return Delivery(self._not_taken, self._lost)
 
     def recent(self, now_s: float) -> Delivery:
-        """In the last ``window_s`` (all since a reset of the receive clock), the losses as in :attr:`total`."""
+        """In the last ``window_s`` (all since a reset of the receive clock)."""
         if self._recent and now_s < self._recent[-1][0]:  # the receive clock went back
             self._recent.clear()
         while self._recent and self._recent[0][0] < now_s - self.window_s:
             self._recent.popleft()
-        not_taken = sum(n for _, n, _ in self._recent)
-        return Delivery(not_taken, min(sum(n for _, _, n in self._recent), not_taken))
+        return Delivery(sum(n for _, n, _ in self._recent), sum(n for _, _, n in self._recent))
 
-    def _add(self, now_s: float, not_taken: int, lost: int) -> None:
-        self._not_taken += not_taken
+    def _gap(self, now_s: float, missed: int) -> None:
+        """``missed`` messages skipped: as many of them lost as DDS reported and no gap took yet."""
+        self._expire(now_s)
+        lost = 0
+        while self._pending and lost < missed:
+            at, count = self._pending.popleft()
+            used = min(count, missed - lost)
+            lost += used
+            if used < count:
+                self._pending.appendleft((at, count - used))
+        self._not_taken += missed
         self._lost += lost
         self.recent(now_s)  # the window trimmed: bounded whether or not anyone reads it
-        self._recent.append((now_s, not_taken, lost))
+        self._recent.append((now_s, missed, lost))
+
+
+    def _expire(self, now_s: float) -> None:
+        """Forget the losses DDS reported whose gap did not come within ``window_s`` (lost after the last message
+        taken), or reported before a reset of the receive clock."""
+        while self._pending and not now_s - self.window_s <= self._pending[0][0] <= now_s:
+            self._pending.popleft()
 
 
 def not_taken_how(delivery: Delivery, loss_events: bool, queue: str = "the input's queue") -> str:

@@ -27,7 +27,7 @@ import numpy as np
 
 from lip_msgs_py.diagnostics import DiagnosticLevel
 from lip_ros.core.clock import CLOCK_STEP_NS, stepped_back
-from lip_ros.core.delivery import DeliveryGaps, not_taken_how
+from lip_ros.core.delivery import Delivery, DeliveryGaps, not_taken_how
 from lip_ros.core.frame_period import FramePeriod
 
 __all__ = ["SensorReport", "SilenceChange", "SensorMonitor", "odd_delays"]
@@ -55,8 +55,8 @@ class SensorReport:
     clock_steps: int = 0  # how often the stamps stepped back or ran ahead of the receive clock, since start
     delay_s: float | None = None  # median receive time less stamp of the latest messages (SensorMonitor.delay_s)
     missing: int = 0  # messages missing from gaps in the stamps, since start (with count_missing)
-    not_taken: int = 0  # messages published and never taken, since start (SensorMonitor.delivery)
-    lost_in_transport: int = 0  # of which DDS said they never arrived
+    not_taken: int | None = None  # messages published and never taken, since start (None: not counted; delivery)
+    lost_in_transport: int | None = None  # of which DDS said they were lost
 
 
 class SilenceChange(NamedTuple):
@@ -247,10 +247,9 @@ class SensorMonitor:
             health, message = DiagnosticLevel.WARN, "; ".join(problems)
         else:
             health, message = DiagnosticLevel.OK, f"{rate:.1f} Hz"
-        total = self.delivery.total
+        total = self.delivery.total if self.delivery.counting else Delivery(None, None)
         return SensorReport(self.name, health, message, rate, self._received, self._accepted, rejected,
-                            self._out_of_order, age, self._clock_steps, delay, self._missing, total.not_taken,
-                            total.lost_in_transport)
+                            self._out_of_order, age, self._clock_steps, delay, self._missing, *total)
 
 
 def odd_delays(delays: Mapping[str, float | None], tolerance_s: float) -> dict[str, float]:

@@ -86,9 +86,11 @@ BETWEEN_NODES = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 IMU_INPUT = QoSProfile(depth=50, reliability=qos_profile_sensor_data.reliability,
                        durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
 #: An input's /diagnostics values: its messages published and never taken since start, and of them those DDS said
-#: were lost in transport (:class:`lip_ros.core.delivery.DeliveryGaps`; the rest were overwritten in its queue).
+#: were lost in transport (:class:`lip_ros.core.delivery.DeliveryGaps`; the rest were overwritten in its queue);
+#: UNKNOWN until a numbered message was taken (none yet; a middleware that does not number them).
 NOT_TAKEN_VALUE = "not_taken"
 LOST_IN_TRANSPORT_VALUE = "not_taken_lost_in_transport"
+UNKNOWN = "unknown"
 #: seconds (steady time) after a node's start at which each input that has received nothing yet is logged, once
 NO_MESSAGE_LOG_S = 10.0
 #: how often a node takes the messages of its polled inputs (:meth:`GraphNode.add_input`, ``polled``) and looks at
@@ -443,10 +445,12 @@ class GraphNode(Node):
         if (not from_graph) if watched is None else watched:
             self._watched.append(name)
 
+        publishers = functools.partial(self.count_publishers, topic)
+
         def callback(msg: Any, info: dict[str, Any] | None) -> None:
             now = self.now_ns() * 1e-9
             if info is not None:
-                monitor.delivery.taken(now, info.get("publication_sequence_number"))
+                monitor.delivery.taken(now, info.get("publication_sequence_number"), publishers)
             try:
                 monitor.accept(now, handle(msg))
             except MalformedMessageError as exc:
@@ -551,14 +555,14 @@ class GraphNode(Node):
         self._log_silences(now * 1e-9)
         self._log_not_taken()
         for name, (topic, _, monitor) in self._inputs.items():
-            if name in self._takers:  # over DDS: its gaps counted while the topic has one publisher
-                monitor.delivery.publishers(self.count_publishers(topic))
             r = monitor.report(now * 1e-9)
             values = {"rate_hz": f"{r.rate_hz:.2f}", "received": r.received, "accepted": r.accepted,
                       "out_of_order": r.out_of_order, "clock_steps": r.clock_steps, "missing": r.missing,
-                      NOT_TAKEN_VALUE: r.not_taken, LOST_IN_TRANSPORT_VALUE: r.lost_in_transport,
                       "age_s": "none" if r.age_s is None else f"{r.age_s:.3f}",
                       "delay_ms": "none" if r.delay_s is None else f"{1e3 * r.delay_s:.1f}"}
+            if name in self._takers:  # over DDS (not handed over by a direct call)
+                values |= {NOT_TAKEN_VALUE: UNKNOWN if r.not_taken is None else r.not_taken,
+                           LOST_IN_TRANSPORT_VALUE: UNKNOWN if r.lost_in_transport is None else r.lost_in_transport}
             values.update({f"rejected: {k}": v for k, v in r.rejected.items()})
             statuses.append(diagnostic_status_to_msg(self.backend, int(r.health), f"{self.get_name()}: {r.name}",
                                                      r.message, hardware_id=topic, values=values))

@@ -12,15 +12,17 @@ are the middleware's reception times (system clock), or the node clock's when
 SIGINT or SIGTERM, after ``--duration`` or ``--max-messages``; the bag is always
 closed cleanly. Messages published and never recorded (lost in transport, or
 overwritten in the recorder's queue while it wrote) are counted per topic from
-the publishers' sequence numbers (``lip_ros.core.delivery``; not after the last
-message recorded, nor while a topic has several publishers) and said at the end.
+the publishers' sequence numbers (``lip_ros.core.delivery``; not before the
+first message recorded of a publisher, nor after its last) and said at the end.
 """
 
 from __future__ import annotations
 
+import functools
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +40,7 @@ from lip_ros.tools.ros_cli import ArgumentParser, Progress, ToolError, run_tool,
 
 PROG = "lip_bag_record"
 RECORD_DEPTH = 100  # subscription queue per topic: room for bursts while a large message is being written
-GRAPH_POLL_S = 0.2  # how often the graph is searched for publishers (of topics not yet subscribed; how many)
+GRAPH_POLL_S = 0.2  # how often the graph is searched for publishers of topics not yet subscribed
 RECORDER_QUEUE = "the recorder's queue"  # where a message not recorded may have been overwritten, as said
 
 
@@ -61,6 +63,7 @@ class BagRecorder:
         self.counts: dict[str, int] = {}
         #: per topic subscribed: the messages published and never recorded (times: time.monotonic)
         self.gaps: dict[str, DeliveryGaps] = {}
+        self._publishers: dict[str, Callable[[], int]] = {}  # per topic: how many publishers it has now
         self.pending = list(dict.fromkeys(topics))
         self.messages = 0
 
@@ -77,6 +80,7 @@ class BagRecorder:
             conn = self.writer.add_connection(topic, types[topic][0], typestore=jazzy_typestore(),
                                               offered_qos_profiles=[qos_to_bag(q) for q in offers])
             gaps = self.gaps[topic] = DeliveryGaps()
+            self._publishers[topic] = functools.partial(self.node.count_publishers, topic)
             qos = common_qos(offers, depth=RECORD_DEPTH)
 
             def write(data: bytes, info: dict[str, Any], conn: Connection = conn) -> None:
@@ -94,11 +98,6 @@ class BagRecorder:
             self.counts[topic] = 0
             self.pending.remove(topic)
 
-    def count_publishers(self) -> None:
-        """Tell each subscribed topic's count of messages not recorded how many publishers it has now."""
-        for topic, gaps in self.gaps.items():
-            gaps.publishers(self.node.count_publishers(topic))
-
     def not_recorded(self) -> list[str]:
         """Per topic with messages published and never recorded: how many and where they went."""
         return [f"{topic}: {gaps.total.not_taken} published and never recorded "
@@ -115,7 +114,8 @@ class BagRecorder:
         if self.max_messages is not None and self.messages >= self.max_messages:
             return
         self.writer.write(conn, self._log_ns(info), data)
-        self.gaps[conn.topic].taken(time.monotonic(), info.get("publication_sequence_number"))
+        self.gaps[conn.topic].taken(time.monotonic(), info.get("publication_sequence_number"),
+                                    self._publishers[conn.topic])
         self.counts[conn.topic] += 1
         self.messages += 1
         if self.max_messages is not None and self.messages >= self.max_messages:
@@ -126,10 +126,8 @@ class BagRecorder:
         end = None if duration_s is None else time.monotonic() + duration_s
         next_poll = 0.0
         while not self.stop.is_set() and (end is None or time.monotonic() < end):
-            if time.monotonic() >= next_poll:
-                if self.pending:
-                    self.poll_graph()
-                self.count_publishers()
+            if self.pending and time.monotonic() >= next_poll:
+                self.poll_graph()
                 next_poll = time.monotonic() + GRAPH_POLL_S
             rclpy.spin_once(self.node, timeout_sec=0.05)
             if progress:

@@ -81,7 +81,7 @@ from lip_ros.hsc4d.sensors import (
 )
 from lip_ros.lip.calibration import load_calibration
 from lip_ros.lip.sensors import INPUT_TOPICS, LIDAR_TOPIC, LIP_TOPICS
-from lip_ros.nodes.base import LOST_IN_TRANSPORT_VALUE, NOT_TAKEN_VALUE
+from lip_ros.nodes.base import LOST_IN_TRANSPORT_VALUE, NOT_TAKEN_VALUE, UNKNOWN
 from lip_ros.nodes.hsc4d import MOUNT_HIP_VALUE, MOUNT_SPIN_VALUE, OFFSET_VALUE, OPTIMISING_VALUE
 from lip_ros.nodes.lip import CALIBRATION_NODE_NAME, DOT_LATENCY_VALUE
 from lip_ros.outputs import GT_TOPICS
@@ -196,10 +196,7 @@ class ProcessSummary:
         unaccounted = self.frames_in - sum(self.frames.values())
         lost = ""
         if self.received is not None:
-            lost = (f" (the graph received {self.received} of the {self.frames_in} clouds: "
-                    + ("lost in transport or overwritten in its input's queue" if self.not_taken is None else
-                       f"its input counted {self.not_taken[0]} published and never taken, {self.not_taken[1]} lost "
-                       f"in transport, {self.not_taken[0] - self.not_taken[1]} overwritten in its queue") + ")"
+            lost = (f" (the graph received {self.received} of the {self.frames_in} clouds: {self._not_taken()})"
                     if self.received < self.frames_in else " (every cloud was received)")
         out = [f"frames in: {self.frames_in}; " + ", ".join(f"{k} {v}" for k, v in sorted(self.frames.items()))
                + (f"; not accounted for {unaccounted}{lost}" if unaccounted else "")]
@@ -232,6 +229,16 @@ class ProcessSummary:
                        f"{self.bag_s / self.wall_s:.2f}x real time (--rate {self.rate:g})")
         return out
 
+    def _not_taken(self) -> str:
+        """Where the clouds the graph did not receive went, as far as its input counted them."""
+        if self.not_taken is None:
+            return "lost in transport or overwritten in its input's queue"
+        counted, lost = self.not_taken
+        out = (f"its input counted {counted} published and never taken, {lost} lost in transport, {counted - lost} "
+               "overwritten in its queue")
+        beyond = self.frames_in - self.received - counted  # before the first cloud taken or after the last
+        return out + (f"; {beyond} more before the first cloud it took or after the last" if beyond > 0 else "")
+
 
 def _poses(bag: Path, topic: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     out = {}
@@ -258,8 +265,8 @@ def summarize_outputs(inputs: Path, outputs: Path, branch: Branch = LIP, refined
                 lidar[s.name] = s.values
     first = max(lidar.values(), key=lambda v: int(v["received"]), default=None)  # the node that took the most
     not_taken = None
-    if first is not None and NOT_TAKEN_VALUE in first:
-        not_taken = (int(first[NOT_TAKEN_VALUE]), int(first.get(LOST_IN_TRANSPORT_VALUE, 0)))
+    if first is not None and first.get(NOT_TAKEN_VALUE, UNKNOWN) != UNKNOWN:
+        not_taken = (int(first[NOT_TAKEN_VALUE]), int(first[LOST_IN_TRANSPORT_VALUE]))
     if branch.latency_status not in last:
         raise ToolError(f"{outputs} holds no diagnostics of the {branch.name} graph ({branch.latency_status})")
     frames = {k.removeprefix("frames "): int(v) for name, values in last.items() if name.endswith(": frames")

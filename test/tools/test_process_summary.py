@@ -14,6 +14,9 @@ def test_frames_not_accounted_for_say_whether_the_graph_received_their_clouds():
     told = ProcessSummary(10, {"pose": 7}, 7, (3, 1)).lines()[0]
     assert told.endswith("not accounted for 3 (the graph received 7 of the 10 clouds: its input counted 3 published "
                          "and never taken, 1 lost in transport, 2 overwritten in its queue)")
+    ends = ProcessSummary(10, {"pose": 6}, 6, (3, 0)).lines()[0]
+    assert ends.endswith("its input counted 3 published and never taken, 0 lost in transport, 3 overwritten in its "
+                         "queue; 1 more before the first cloud it took or after the last)")
     held = ProcessSummary(10, {"pose": 8, "skipped: malformed cloud": 1}, 10).lines()[0]
     assert held.endswith("not accounted for 1 (every cloud was received)")
     assert ProcessSummary(10, {"pose": 9}).lines()[0].endswith("not accounted for 1")
