@@ -445,7 +445,7 @@ class GraphNode(Node):
         if (not from_graph) if watched is None else watched:
             self._watched.append(name)
 
-        publishers = functools.partial(self.count_publishers, topic)
+        publishers = functools.partial(self.count_publishers, self.resolve_topic_name(topic))  # remapped
 
         def callback(msg: Any, info: dict[str, Any] | None) -> None:
             now = self.now_ns() * 1e-9
