@@ -118,18 +118,19 @@ def test_take_waiting_handles_every_message_already_received() -> None:
 
 
 class _PolledProbe(GraphNode):
-    """A graph node with one input the executor waits on and one it polls."""
+    """A graph node with one input the executor waits on and one it polls (``topics``: their topics, by "spun" and
+    "polled"; ``qos``: default the suit's)."""
 
     NAME = "lip_ros_test_polled"
     PARAMS_FILE = LIP_PARAMS_FILE
 
-    def __init__(self) -> None:
+    def __init__(self, topics: str = "/lip_ros_test/{}", qos: QoSProfile | None = None) -> None:
         super().__init__(self.NAME)
         self.handled: dict[str, list[int]] = {"spun": [], "polled": []}
         for name in self.handled:
-            self.add_input(name, f"/lip_ros_test/{name}", Int64, 100.0,
-                           lambda msg, name=name: self.handled[name].append(msg.data) or msg.data, suit_input(100.0),
-                           polled=name == "polled")
+            self.add_input(name, topics.format(name), Int64, 100.0,
+                           lambda msg, name=name: self.handled[name].append(msg.data) or msg.data,
+                           qos or suit_input(100.0), polled=name == "polled")
 
 
 def test_a_polled_input_is_taken_only_when_the_node_polls_it() -> None:
@@ -168,22 +169,7 @@ def test_a_polled_input_is_taken_only_when_the_node_polls_it() -> None:
         rclpy.try_shutdown()
 
 
-_SHALLOW = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
-
-
-class _ShallowProbe(GraphNode):
-    """A graph node with two inputs of five messages' queues, one the executor would wait on and one it polls."""
-
-    NAME = "lip_ros_test_not_taken"
-    PARAMS_FILE = LIP_PARAMS_FILE
-
-    def __init__(self) -> None:
-        super().__init__(self.NAME)
-        self.handled: dict[str, list[int]] = {"spun": [], "polled": []}
-        for name in self.handled:
-            self.add_input(name, f"/lip_ros_test/not_taken_{name}", Int64, 100.0,
-                           lambda msg, name=name: self.handled[name].append(msg.data) or msg.data, _SHALLOW,
-                           polled=name == "polled")
+_SHALLOW = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)  # a queue of five messages
 
 
 def test_messages_overwritten_in_an_input_queue_are_counted_on_diagnostics_and_logged(capfd) -> None:
@@ -194,7 +180,7 @@ def test_messages_overwritten_in_an_input_queue_are_counted_on_diagnostics_and_l
     events unhandled) and a WARN says so. A publisher started again numbers its messages from 1 again: not a
     gap."""
     rclpy.init()
-    probe = _ShallowProbe()
+    probe = _PolledProbe("/lip_ros_test/not_taken_{}", _SHALLOW)
     driver = rclpy.create_node("lip_ros_test_not_taken_driver")
     publishers = {name: driver.create_publisher(Int64, f"/lip_ros_test/not_taken_{name}", _SHALLOW)
                   for name in probe.handled}
