@@ -14,13 +14,17 @@ The numbers are per publisher, and the message info does not say which one sent
 a message: each number continues the *stream* whose last number is the closest
 below it; one below every stream's starts a stream of its own (a second
 publisher, or one started again), and so does one that would leave a gap while
-the topic has more publishers than streams followed (a publisher matched late,
-its numbers ahead of the others'). A stream's first message starts its count:
-what a publisher published before this subscriber was matched is nobody's loss,
-and so is what went missing before the first message taken and after the last.
-A stream not continued for ``idle_s`` is forgotten (a publisher gone). Two
-publishers' streams could swap messages where one's numbers pass the other's;
-the count stays the number of messages skipped.
+the subscription has more publishers matched than streams followed (a publisher
+matched late, its numbers ahead of the others'). A stream's first message starts
+its count: what a publisher published before this subscriber was matched is
+nobody's loss, and so is what went missing before the first message taken and
+after the last. Streams are kept, however long idle (a gap across an outage is
+counted), up to :data:`MAX_STREAMS`; a publisher gone leaves its stream behind,
+so one matched after it with numbers ahead of that stream's has its first
+message taken for a gap in it. Two publishers' streams could swap messages where
+one's numbers pass the other's; the count stays the number of messages skipped.
+A loss DDS reports is matched to a gap seen within ``window_s`` before or after
+it (the event and the message after the loss are taken in either order).
 """
 
 from __future__ import annotations
@@ -58,11 +62,11 @@ class DeliveryGaps:
 
     window_s: float = 2.0
     loss_events: bool = True  #: whether DDS's loss events come to :meth:`lost_in_transport` (not for a polled input)
-    idle_s: float = 10.0  #: a stream not continued for this long is forgotten
     _streams: dict[int, float] = field(default_factory=dict)  # last number -> when it was taken
     _not_taken: int = 0
     _lost: int = 0
     _pending: deque[tuple[float, int]] = field(default_factory=deque, repr=False)  # DDS's losses, gap not seen yet
+    _open: deque[list[float | int]] = field(default_factory=deque, repr=False)  # [time, skipped no loss matched yet]
     _recent: deque[tuple[float, int, int]] = field(default_factory=deque, repr=False)  # (time, not taken, lost)
 
     @property
@@ -72,12 +76,13 @@ class DeliveryGaps:
 
     def taken(self, now_s: float, sequence: int | None, publishers: Callable[[], int] | None = None) -> None:
         """A message with the publisher's ``sequence`` number (None: not given) taken at ``now_s``;
-        ``publishers()``: how many publishers the topic has now (asked only where the message would leave a gap;
-        None: as many as streams followed)."""
+        ``publishers()``: how many publishers the subscription has matched now (asked only where the message would
+        leave a gap; None: as many as streams followed)."""
         if sequence is None or sequence >= SEQUENCE_UNSUPPORTED:
             return
-        if any(not now_s - self.idle_s <= t <= now_s for t in self._streams.values()):
-            self._streams = {n: t for n, t in self._streams.items() if now_s - self.idle_s <= t <= now_s}
+        if sequence in self._streams:  # the number a stream is at (a repeat, or two publishers' numbers met)
+            self._streams[sequence] = now_s
+            return
         last = max((n for n in self._streams if n < sequence), default=None)
         if (last is not None and sequence > last + 1 and publishers is not None
                 and publishers() > len(self._streams)):
@@ -92,11 +97,24 @@ class DeliveryGaps:
         self._streams[sequence] = now_s
 
     def lost_in_transport(self, now_s: float, count: int) -> None:
-        """DDS says ``count`` more messages were lost: told apart once their gap is seen in the messages taken
-        (the next message after them taken), within ``window_s``."""
-        if count > 0:
-            self._expire(now_s)
-            self._pending.append((now_s, count))
+        """DDS says ``count`` more messages were lost: matched to the gaps seen in the messages taken within
+        ``window_s`` before (oldest first) or, the rest, after."""
+        if count <= 0:
+            return
+        self._expire(now_s)
+        matched = 0
+        while self._open and matched < count:
+            gap = self._open[0]
+            use = min(int(gap[1]), count - matched)
+            matched += use
+            gap[1] -= use
+            if not gap[1]:
+                self._open.popleft()
+        if matched:
+            self._lost += matched
+            self._recent.append((now_s, 0, matched))
+        if count > matched:
+            self._pending.append((now_s, count - matched))
 
     @property
     def total(self) -> Delivery:
@@ -109,7 +127,8 @@ class DeliveryGaps:
             self._recent.clear()
         while self._recent and self._recent[0][0] < now_s - self.window_s:
             self._recent.popleft()
-        return Delivery(sum(n for _, n, _ in self._recent), sum(n for _, _, n in self._recent))
+        not_taken = sum(n for _, n, _ in self._recent)  # a late loss's gap may have left the window before it
+        return Delivery(not_taken, min(sum(n for _, _, n in self._recent), not_taken))
 
     def _gap(self, now_s: float, missed: int) -> None:
         """``missed`` messages skipped: as many of them lost as DDS reported and no gap took yet."""
@@ -123,15 +142,18 @@ class DeliveryGaps:
                 self._pending.appendleft((at, count - used))
         self._not_taken += missed
         self._lost += lost
+        if missed > lost:  # a loss DDS reports late may still be this gap's
+            self._open.append([now_s, missed - lost])
         self.recent(now_s)  # the window trimmed: bounded whether or not anyone reads it
         self._recent.append((now_s, missed, lost))
 
 
     def _expire(self, now_s: float) -> None:
         """Forget the losses DDS reported whose gap did not come within ``window_s`` (lost after the last message
-        taken), or reported before a reset of the receive clock."""
-        while self._pending and not now_s - self.window_s <= self._pending[0][0] <= now_s:
-            self._pending.popleft()
+        taken), and the gaps no loss came for within it; all of them across a reset of the receive clock."""
+        for waiting in (self._pending, self._open):
+            while waiting and not now_s - self.window_s <= waiting[0][0] <= now_s:
+                waiting.popleft()
 
 
 def not_taken_how(delivery: Delivery, loss_events: bool, queue: str = "the input's queue") -> str:

@@ -13,22 +13,22 @@ SIGINT or SIGTERM, after ``--duration`` or ``--max-messages``; the bag is always
 closed cleanly. Messages published and never recorded (lost in transport, or
 overwritten in the recorder's queue while it wrote) are counted per topic from
 the publishers' sequence numbers (``lip_ros.core.delivery``; not before the
-first message recorded of a publisher, nor after its last) and said at the end.
+first message recorded of a publisher, nor after its last; not where the
+middleware does not number them) and said at the end for each topic that has any.
 """
 
 from __future__ import annotations
 
-import functools
 import sys
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import rclpy
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks, UnsupportedEventTypeError
 from rclpy.node import Node
+from rclpy.subscription import Subscription
 from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Writer
 
@@ -63,7 +63,7 @@ class BagRecorder:
         self.counts: dict[str, int] = {}
         #: per topic subscribed: the messages published and never recorded (times: time.monotonic)
         self.gaps: dict[str, DeliveryGaps] = {}
-        self._publishers: dict[str, Callable[[], int]] = {}  # per topic: how many publishers it has now
+        self._subscriptions: dict[str, Subscription] = {}  # per topic
         self.pending = list(dict.fromkeys(topics))
         self.messages = 0
 
@@ -80,7 +80,6 @@ class BagRecorder:
             conn = self.writer.add_connection(topic, types[topic][0], typestore=jazzy_typestore(),
                                               offered_qos_profiles=[qos_to_bag(q) for q in offers])
             gaps = self.gaps[topic] = DeliveryGaps()
-            self._publishers[topic] = functools.partial(self.node.count_publishers, topic)
             qos = common_qos(offers, depth=RECORD_DEPTH)
 
             def write(data: bytes, info: dict[str, Any], conn: Connection = conn) -> None:
@@ -90,11 +89,11 @@ class BagRecorder:
                 gaps.lost_in_transport(time.monotonic(), status.total_count_change)
 
             try:
-                self.node.create_subscription(cls, topic, write, qos, raw=True,
-                                              event_callbacks=SubscriptionEventCallbacks(message_lost=lost))
+                self._subscriptions[topic] = self.node.create_subscription(
+                    cls, topic, write, qos, raw=True, event_callbacks=SubscriptionEventCallbacks(message_lost=lost))
             except UnsupportedEventTypeError:  # an rmw without loss events: losses not told from overwrites
                 gaps.loss_events = False
-                self.node.create_subscription(cls, topic, write, qos, raw=True)
+                self._subscriptions[topic] = self.node.create_subscription(cls, topic, write, qos, raw=True)
             self.counts[topic] = 0
             self.pending.remove(topic)
 
@@ -115,7 +114,7 @@ class BagRecorder:
             return
         self.writer.write(conn, self._log_ns(info), data)
         self.gaps[conn.topic].taken(time.monotonic(), info.get("publication_sequence_number"),
-                                    self._publishers[conn.topic])
+                                    self._subscriptions[conn.topic].get_publisher_count)
         self.counts[conn.topic] += 1
         self.messages += 1
         if self.max_messages is not None and self.messages >= self.max_messages:

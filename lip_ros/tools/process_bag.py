@@ -237,7 +237,9 @@ class ProcessSummary:
         out = (f"its input counted {counted} published and never taken, {lost} lost in transport, {counted - lost} "
                "overwritten in its queue")
         beyond = self.frames_in - self.received - counted  # before the first cloud taken or after the last
-        return out + (f"; {beyond} more before the first cloud it took or after the last" if beyond > 0 else "")
+        if beyond < 0:  # the count's numbers are every publisher's of the topic: not only this bag's clouds
+            return out + f"; {-beyond} more than the bag's clouds it missed (other publishers of the topic?)"
+        return out + (f"; {beyond} more before the first cloud it took or after the last" if beyond else "")
 
 
 def _poses(bag: Path, topic: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:

@@ -17,6 +17,8 @@ def test_frames_not_accounted_for_say_whether_the_graph_received_their_clouds():
     ends = ProcessSummary(10, {"pose": 6}, 6, (3, 0)).lines()[0]
     assert ends.endswith("its input counted 3 published and never taken, 0 lost in transport, 3 overwritten in its "
                          "queue; 1 more before the first cloud it took or after the last)")
+    more = ProcessSummary(10, {"pose": 9}, 9, (3, 0)).lines()[0]
+    assert more.endswith("; 2 more than the bag's clouds it missed (other publishers of the topic?))")
     held = ProcessSummary(10, {"pose": 8, "skipped: malformed cloud": 1}, 10).lines()[0]
     assert held.endswith("not accounted for 1 (every cloud was received)")
     assert ProcessSummary(10, {"pose": 9}).lines()[0].endswith("not accounted for 1")
