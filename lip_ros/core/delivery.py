@@ -147,7 +147,6 @@ class DeliveryGaps:
         self.recent(now_s)  # the window trimmed: bounded whether or not anyone reads it
         self._recent.append((now_s, missed, lost))
 
-
     def _expire(self, now_s: float) -> None:
         """Forget the losses DDS reported whose gap did not come within ``window_s`` (lost after the last message
         taken), and the gaps no loss came for within it; all of them across a reset of the receive clock."""

@@ -27,7 +27,7 @@ import numpy as np
 
 from lip_msgs_py.diagnostics import DiagnosticLevel
 from lip_ros.core.clock import CLOCK_STEP_NS, stepped_back
-from lip_ros.core.delivery import Delivery, DeliveryGaps, not_taken_how
+from lip_ros.core.delivery import DeliveryGaps, not_taken_how
 from lip_ros.core.frame_period import FramePeriod
 
 __all__ = ["SensorReport", "SilenceChange", "SensorMonitor", "odd_delays"]
@@ -247,9 +247,11 @@ class SensorMonitor:
             health, message = DiagnosticLevel.WARN, "; ".join(problems)
         else:
             health, message = DiagnosticLevel.OK, f"{rate:.1f} Hz"
-        total = self.delivery.total if self.delivery.counting else Delivery(None, None)
+        total = self.delivery.total
+        counted = self.delivery.counting
         return SensorReport(self.name, health, message, rate, self._received, self._accepted, rejected,
-                            self._out_of_order, age, self._clock_steps, delay, self._missing, *total)
+                            self._out_of_order, age, self._clock_steps, delay, self._missing,
+                            total.not_taken if counted else None, total.lost_in_transport if counted else None)
 
 
 def odd_delays(delays: Mapping[str, float | None], tolerance_s: float) -> dict[str, float]:

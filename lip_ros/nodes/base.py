@@ -62,7 +62,7 @@ from lip_msgs_py import (
 )
 from lip_msgs_py.cdr import imu_samples
 from lip_ros.core.clock import SteppingClock
-from lip_ros.core.delivery import Delivery, not_taken_how
+from lip_ros.core.delivery import not_taken_how
 from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import keep_message_buffers, use_lip_dds_profile
 from lip_ros.resources import params_path
@@ -356,7 +356,7 @@ class GraphNode(Node):
         self._started_ns = self.steady.now().nanoseconds
         self._watched: list[str] = []  # the inputs whose silences are logged (add_input's ``watched``)
         self._waiting: set[str] = set()  # watched inputs logged as having received nothing since start
-        self._not_taken_logged: dict[str, Delivery] = {}  # by input: its messages not taken, as last logged
+        self._not_taken_logged: dict[str, int] = {}  # by input: its messages not taken, as last logged
         self.create_timer(self.params["diagnostics_period_s"], self._on_diagnostics_timer, self.group,
                           clock=self.steady)
 
@@ -612,18 +612,19 @@ class GraphNode(Node):
 
     def _log_not_taken(self) -> None:
         """Log (WARN) the inputs with messages published and never taken since the last report (:meth:`add_input`):
-        how many, and of them how many DDS said were lost in transport and how many were overwritten in the
-        input's queue."""
+        how many, and since start how many, of them how many DDS said were lost in transport and how many were
+        overwritten in the input's queue (since start: a loss DDS reports after its gap was seen moves one from
+        the second to the first)."""
         said = []
         for name in self._takers:
             topic, _, monitor = self._inputs[name]
             total = monitor.delivery.total
-            before = self._not_taken_logged.get(name, Delivery(0, 0))
-            if total.not_taken == before.not_taken:
+            new = total.not_taken - self._not_taken_logged.get(name, 0)
+            if not new:
                 continue
-            self._not_taken_logged[name] = total
-            new = Delivery(total.not_taken - before.not_taken, total.lost_in_transport - before.lost_in_transport)
-            said.append(f"{name} ({topic}) {new.not_taken} ({not_taken_how(new, monitor.delivery.loss_events)})")
+            self._not_taken_logged[name] = total.not_taken
+            how = not_taken_how(total, monitor.delivery.loss_events)
+            said.append(f"{name} ({topic}) {new} (since start {total.not_taken}: {how})")
         if said:
             self.get_logger().warning("published and never taken since the last report: " + ", ".join(said))
 

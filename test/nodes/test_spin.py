@@ -221,9 +221,10 @@ def test_messages_overwritten_in_an_input_queue_are_counted_on_diagnostics_and_l
         assert ("25 published and not taken (lost in transport or overwritten in the input's queue)"
                 in status["polled"].message)
         log = capfd.readouterr().err
-        assert ("published and never taken since the last report: spun (/lip_ros_test/not_taken_spun) 25 (0 lost in "
-                "transport, 25 overwritten in the input's queue), polled (/lip_ros_test/not_taken_polled) 25 (lost in "
-                "transport or overwritten in the input's queue)") in log
+        assert ("published and never taken since the last report: spun (/lip_ros_test/not_taken_spun) 25 (since "
+                "start 25: 0 lost in transport, 25 overwritten in the input's queue), polled "
+                "(/lip_ros_test/not_taken_polled) 25 (since start 25: lost in transport or overwritten in the input's "
+                "queue)") in log
         driver.destroy_publisher(publishers["spun"])  # started again: its numbers from 1
         again = driver.create_publisher(Int64, "/lip_ros_test/not_taken_spun", _SHALLOW)
         while again.get_subscription_count() == 0 and time.monotonic() < deadline:
