@@ -349,7 +349,7 @@ class GraphNode(Node):
         self._reported: Counter[str] = Counter()  # self.frames at the last report
         self._last_skip = ""  # why the latest skipped frame was skipped, in detail
         self._inputs: dict[str, tuple[str, type, SensorMonitor]] = {}
-        self._takers: dict[str, tuple[Subscription, Callable[[Any, dict[str, Any]], None]]] = {}  # by input name
+        self._takers: dict[str, tuple[Subscription, Callable[[Any, dict[str, Any] | None], None]]] = {}  # by input
         self._polled: list[str] = []  # the inputs no executor waits on (:meth:`take_polled`)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)  # also ticks while a bag's /clock is paused or over
