@@ -21,6 +21,7 @@ has received nothing :data:`NO_MESSAGE_LOG_S` after the node started (WARN).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import gc
 import math
@@ -62,7 +63,7 @@ from lip_msgs_py import (
 )
 from lip_msgs_py.cdr import imu_samples
 from lip_ros.core.clock import SteppingClock
-from lip_ros.core.delivery import not_taken_how
+from lip_ros.core.delivery import DeliveryGaps, not_taken_how
 from lip_ros.core.sensor_monitor import SensorMonitor
 from lip_ros.middleware import keep_message_buffers, use_lip_dds_profile
 from lip_ros.resources import params_path
@@ -72,7 +73,7 @@ __all__ = ["ParameterError", "TopicTypeError", "Param", "positive", "non_negativ
            "LatencyWindow", "RELIABLE", "BETWEEN_NODES", "IMU_INPUT", "SUIT_QUEUE_S", "suit_input",
            "LATCHED", "POLL_PERIOD_S", "node_defaults", "check_params_files", "run_nodes", "FrameArrivals",
            "LocalTopics", "BetweenNodesPublisher", "DIRECT_INPUTS_PARAM", "tf_publisher", "rejection_reason",
-           "read_imu", "SKIPPED"]
+           "read_imu", "SKIPPED", "subscribe_counting_losses", "NOT_TAKEN_VALUE", "LOST_IN_TRANSPORT_VALUE", "UNKNOWN"]
 
 #: How ``GraphNode.count_frame`` names a frame that ended without a pose.
 SKIPPED = "skipped"
@@ -456,10 +457,6 @@ class GraphNode(Node):
                 monitor.reject(now, rejection_reason(exc))
                 self.get_logger().warning(f"{name} ({topic}): message skipped: {exc}", throttle_duration_sec=5.0)
 
-        def lost(status: QoSMessageLostInfo) -> None:
-            with self.serial:
-                monitor.delivery.lost_in_transport(self.now_ns() * 1e-9, status.total_count_change)
-
         qos = BETWEEN_NODES if from_graph else qos
         if polled and qos.reliability != ReliabilityPolicy.BEST_EFFORT:
             raise ValueError(f"polled input {name} must be best effort (no QoS event of it is handled)")
@@ -467,15 +464,14 @@ class GraphNode(Node):
             self.local_topics.subscribe(self.resolve_topic_name(topic),
                                         self._serialised(lambda msg: callback(msg, None)))
             return
-        group = _NOT_WAITED_ON if polled else self.group
-        monitor.delivery.loss_events = not polled
-        try:
-            subscription = self.create_subscription(
-                msg_type, topic, callback, qos, callback_group=group, raw=raw,
-                event_callbacks=None if polled else SubscriptionEventCallbacks(message_lost=lost))
-        except UnsupportedEventTypeError:  # an rmw without loss events: what is not taken is not told apart
+        if polled:  # in a group no executor waits on: no QoS event of it would be handled
             monitor.delivery.loss_events = False
-            subscription = self.create_subscription(msg_type, topic, callback, qos, callback_group=group, raw=raw)
+            subscription = self.create_subscription(msg_type, topic, callback, qos, callback_group=_NOT_WAITED_ON,
+                                                    raw=raw)
+        else:
+            subscription = subscribe_counting_losses(self, msg_type, topic, callback, qos, monitor.delivery,
+                                                     lambda: self.now_ns() * 1e-9, self.serial,
+                                                     callback_group=self.group, raw=raw)
         self._takers[name] = (subscription, callback)
         if polled:
             self._polled.append(name)
@@ -627,6 +623,28 @@ class GraphNode(Node):
             said.append(f"{name} ({topic}) {new} (since start {total.not_taken}: {how})")
         if said:
             self.get_logger().warning("published and never taken since the last report: " + ", ".join(said))
+
+
+def subscribe_counting_losses(node: Node, msg_type: Any, topic: str, callback: Callable[..., Any], qos: QoSProfile,
+                              gaps: DeliveryGaps, now_s: Callable[[], float],
+                              lock: contextlib.AbstractContextManager[Any] | None = None,
+                              **kwargs: Any) -> Subscription:
+    """``node.create_subscription`` whose DDS loss events (rclpy's ``message_lost``) go to ``gaps`` at ``now_s()``,
+    holding ``lock`` (a graph node's :attr:`GraphNode.serial`); with an rmw that has no such event, without it
+    (``gaps.loss_events`` false: what is not taken is not told apart)."""
+    lock = lock or contextlib.nullcontext()
+
+    def lost(status: QoSMessageLostInfo) -> None:
+        with lock:
+            gaps.lost_in_transport(now_s(), status.total_count_change)
+
+    gaps.loss_events = True
+    try:
+        return node.create_subscription(msg_type, topic, callback, qos,
+                                        event_callbacks=SubscriptionEventCallbacks(message_lost=lost), **kwargs)
+    except UnsupportedEventTypeError:
+        gaps.loss_events = False
+        return node.create_subscription(msg_type, topic, callback, qos, **kwargs)
 
 
 def read_imu(data: bytes) -> ImuSample:

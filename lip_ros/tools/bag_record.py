@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
-from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks, UnsupportedEventTypeError
 from rclpy.node import Node
 from rclpy.subscription import Subscription
 from rosbags.interfaces import Connection
@@ -35,6 +34,7 @@ from rosbags.rosbag2 import Writer
 from lip_msgs_py import rclpy_message_class
 from lip_ros.bagio import jazzy_typestore, mcap_writer
 from lip_ros.core.delivery import DeliveryGaps, not_taken_how
+from lip_ros.nodes.base import subscribe_counting_losses
 from lip_ros.tools.bag_qos import common_qos, qos_to_bag
 from lip_ros.tools.ros_cli import ArgumentParser, Progress, ToolError, run_tool, start_ros, stop_on_signals, tool_args
 
@@ -85,15 +85,8 @@ class BagRecorder:
             def write(data: bytes, info: dict[str, Any], conn: Connection = conn) -> None:
                 self._write(conn, data, info)
 
-            def lost(status: QoSMessageLostInfo, gaps: DeliveryGaps = gaps) -> None:
-                gaps.lost_in_transport(time.monotonic(), status.total_count_change)
-
-            try:
-                self._subscriptions[topic] = self.node.create_subscription(
-                    cls, topic, write, qos, raw=True, event_callbacks=SubscriptionEventCallbacks(message_lost=lost))
-            except UnsupportedEventTypeError:  # an rmw without loss events: losses not told from overwrites
-                gaps.loss_events = False
-                self._subscriptions[topic] = self.node.create_subscription(cls, topic, write, qos, raw=True)
+            self._subscriptions[topic] = subscribe_counting_losses(self.node, cls, topic, write, qos, gaps,
+                                                                   time.monotonic, raw=True)
             self.counts[topic] = 0
             self.pending.remove(topic)
 
